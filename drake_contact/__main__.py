@@ -1,0 +1,7 @@
+"""``python -m drake_contact`` is the ``drake-contact`` command."""
+
+import sys
+
+from drake_contact.cli import main
+
+sys.exit(main())

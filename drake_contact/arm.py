@@ -1,0 +1,90 @@
+"""The 3-DOF planar direct-drive arm (thesis Appendix A-D), loaded from URDF.
+
+Link data (SPEC §2): lengths a_i, masses m_i, COM at a_i + S_ix from joint i,
+Izz about the COM. The plant is a discrete ``MultibodyPlant`` whose step
+must divide the 1 ms control period; it starts at the thesis's q0.
+"""
+
+import dataclasses as dc
+
+import numpy as np
+from pydrake.multibody.parsing import Parser
+from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
+from pydrake.systems.framework import DiagramBuilder
+
+from drake_contact.errors import ScenarioError
+from drake_contact.resources import arm_urdf_path
+
+#: Controller sample period (s): every controller runs at 1 kHz.
+CONTROL_PERIOD = 1e-3
+
+#: Link lengths a_i (m), masses m_i (kg), COM offsets S_ix (m), Izz (kg m^2).
+LINK_LENGTHS = (0.2207, 0.1603, 0.1508)
+LINK_MASSES = (12.88, 5.95, 0.44)
+LINK_COM_OFFSETS = (-0.0476, -0.0619, -0.0918)
+LINK_IZZ = (0.138841, 0.039523, 1.339e-3)
+
+#: Initial configuration (rad): tip at about (0.454 m, 0, 0).
+THESIS_Q0 = (-0.5377671, 1.3205011, -0.7827340)
+
+#: Name of the end-effector contact frame in the URDF.
+TIP_FRAME = "tip"
+MODEL_NAME = "kiguchi_arm"
+
+
+@dc.dataclass
+class ArmConfig:
+    """The simulated arm."""
+
+    # Plant time step (s); must divide the 1 ms control period.
+    time_step: float = 1e-3
+    # Initial joint angles q0 (rad).
+    initial_positions: list[float] = dc.field(default_factory=lambda: list(THESIS_Q0))
+
+    def validate(self, prefix="arm"):
+        h = self.time_step
+        if not (np.isfinite(h) and 0 < h <= CONTROL_PERIOD):
+            raise ScenarioError(
+                f"{prefix}.time_step = {h} is out of range: must be in (0, 0.001] s "
+                "and divide the 1 ms control period")
+        ratio = CONTROL_PERIOD / h
+        if abs(ratio - round(ratio)) > 1e-9 * ratio:
+            raise ScenarioError(
+                f"{prefix}.time_step = {h} does not divide the 1 ms control period: "
+                "choose 0.001 / N s for a whole N (e.g. 0.001, 0.0005, 0.0001)")
+        q0 = self.initial_positions
+        if len(q0) != 3 or not np.all(np.isfinite(q0)):
+            raise ScenarioError(
+                f"{prefix}.initial_positions = {q0} is out of range: must be 3 finite angles in rad")
+
+
+def AddArmPlant(builder: DiagramBuilder, config: ArmConfig):
+    """Adds the arm (and a SceneGraph) to ``builder``.
+
+    Returns (plant, scene_graph). The plant is finalized and its default
+    state is q = ``config.initial_positions``, v = 0. Gravity points along -z, normal
+    to the plane of motion, so it produces no joint torque.
+    """
+    plant, scene_graph = AddMultibodyPlant(
+        MultibodyPlantConfig(time_step=config.time_step), builder)
+    plant.set_name("plant")
+    LoadArm(plant)
+    plant.Finalize()
+    plant.SetDefaultPositions(np.asarray(config.initial_positions, dtype=float))
+    return plant, scene_graph
+
+
+def LoadArm(plant):
+    """Parses the arm's URDF into an unfinalized plant; returns its instance."""
+    (instance,) = Parser(plant).AddModels(str(arm_urdf_path()))
+    return instance
+
+
+def MakeArmModel(time_step: float = 0.0):
+    """A standalone finalized plant of the arm (no SceneGraph), e.g. for a
+    controller's own model or for computing kinematics off-line."""
+    from pydrake.multibody.plant import MultibodyPlant
+    plant = MultibodyPlant(time_step)
+    LoadArm(plant)
+    plant.Finalize()
+    return plant

@@ -1,0 +1,74 @@
+"""The ``drake-contact`` command (also ``python -m drake_contact``).
+
+    drake-contact run SCENARIO --out DIR [--duration S] [--seed N] [--set k=v ...]
+    drake-contact list
+
+Bad input exits with status 2 and one line naming the field and its allowed
+range; a diverged run exits with status 3 after writing its logs.
+"""
+
+import argparse
+import sys
+
+from drake_contact.errors import ScenarioError
+
+EXIT_BAD_INPUT = 2
+EXIT_DIVERGED = 3
+EXIT_INTERRUPTED = 130
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):
+        # One line, status 2, like every other bad input.
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message}\n")
+
+
+def _build_parser():
+    parser = _Parser(prog="drake-contact", description=__doc__.splitlines()[0])
+    commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    run = commands.add_parser("run", help="simulate one scenario and write its logs")
+    run.add_argument("scenario", help="a scenario file, or a bundled scenario's name")
+    run.add_argument("--out", required=True, help="output folder")
+    run.add_argument("--duration", type=float, help="simulated time (s)")
+    run.add_argument("--seed", type=int, help="seed of every random source")
+    run.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                     help="override a scenario field, e.g. environment.stiffness=6.2e4")
+    run.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    commands.add_parser("list", help="list the bundled scenarios")
+    return parser
+
+
+def _cmd_list(args):
+    from drake_contact.resources import bundled_scenario_names
+    from drake_contact.scenario import load_scenario
+    for name in bundled_scenario_names():
+        description = load_scenario(name).description.strip().splitlines()
+        print(f"{name:28s} {description[0] if description else ''}")
+    return 0
+
+
+def _cmd_run(args):
+    from drake_contact.runner import run, terminal_progress
+    from drake_contact.scenario import load_scenario
+    scenario = load_scenario(args.scenario, args.set, duration=args.duration, seed=args.seed)
+    result = run(scenario, args.out, progress=terminal_progress(), figures=not args.no_figures)
+    m = result.metrics
+    print(f"{result.status}: {m['simulated_time_s']:.3f} s simulated in {m['wall_time_s']:.2f} s "
+          f"(real-time factor {m['realtime_factor']:.2f}, {m['us_per_step']:.1f} us/step); "
+          f"peak force {m['peak_force_n']:.2f} N; wrote {args.out}")
+    if result.status == "diverged":
+        print(f"drake-contact: {result.message}", file=sys.stderr)
+        return EXIT_DIVERGED
+    if result.status == "interrupted":
+        print(f"drake-contact: {result.message}", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    return 0
+
+
+def main(argv=None) -> int:
+    args = _build_parser().parse_args(argv)
+    try:
+        return {"run": _cmd_run, "list": _cmd_list}[args.command](args)
+    except ScenarioError as e:
+        print(f"drake-contact: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT

@@ -1,0 +1,120 @@
+"""Builds the simulation diagram of one scenario.
+
+    controller --joint_torque_commanded--> torque_saturation --> plant.actuation
+    plant.state --> tip_kinematics --tip_state--> wall --force_on_tip--+
+    plant.state --> joint_friction ------------------------------------+--> adder
+    adder (J^T F_wall + tau_friction) --> plant.applied_generalized_force
+    plant.state --> encoders (quantized q)
+
+Every signal a run logs is an exported output port of the diagram, named
+``<what>`` with units in :data:`EXPORTED_OUTPUTS`.
+"""
+
+import numpy as np
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import Adder
+
+from drake_contact.arm import CONTROL_PERIOD, AddArmPlant
+from drake_contact.compliant_wall import CompliantWall
+from drake_contact.errors import ScenarioError
+from drake_contact.joint_physics import (
+    AddEncoders, AddJointFriction, AddTorqueSaturation, check_friction_stability)
+from drake_contact.push_controller import ConstantForcePushController
+from drake_contact.scenario import Scenario
+from drake_contact.tip_kinematics import TipKinematics
+
+#: Exported outputs of :func:`MakeContactDiagram`: name -> (size, meaning).
+EXPORTED_OUTPUTS = {
+    "joint_state_true": (6, "arm [q; v] (rad, rad/s)"),
+    "tip_state_true": (6, "tip [x, y, phi, xdot, ydot, phidot], world (m, rad, /s)"),
+    "contact_force_true": (1, "true normal force on the tip (N)"),
+    "penetration_true": (1, "true surface displacement xe (m)"),
+    "true_impedance": (3, "true [M_e, B_e, K_e] (kg, N s/m, N/m)"),
+    "joint_positions_measured": (3, "encoder-quantized q (rad)"),
+    "joint_torque_commanded": (3, "controller's torque before saturation (N m)"),
+    "joint_torque_applied": (3, "torque after saturation, into the plant (N m)"),
+    "joint_friction_torque": (3, "Coulomb friction torque on the joints (N m)"),
+}
+
+
+def _add_push_controller(builder, scenario, plant):
+    controller = builder.AddNamedSystem(
+        "controller", ConstantForcePushController(plant, scenario.controller.push))
+    builder.Connect(plant.get_state_output_port(), controller.GetInputPort("plant_state"))
+    return controller.GetOutputPort("joint_torque_commanded")
+
+
+#: controller.name -> adder(builder, scenario, plant) returning its torque port.
+CONTROLLER_ADDERS = {
+    "push": _add_push_controller,
+}
+
+
+def MakeContactDiagram(scenario: Scenario, *, meshcat=None):
+    """The arm, its joint physics, the wall and the scenario's controller.
+
+    Returns a Diagram named ``contact_diagram`` exporting the outputs listed in
+    :data:`EXPORTED_OUTPUTS`. Raises ScenarioError for settings that cannot
+    run (e.g. friction regularization unstable at the plant step).
+    """
+    scenario.validate()
+    builder = DiagramBuilder()
+    plant, scene_graph = AddArmPlant(builder, scenario.arm)
+    state_port = plant.get_state_output_port()
+    check_friction_stability(
+        scenario.joint_friction,
+        np.diag(plant.CalcMassMatrix(plant.CreateDefaultContext())),
+        scenario.arm.time_step)
+
+    tip = builder.AddNamedSystem("tip_kinematics", TipKinematics(plant))
+    builder.Connect(state_port, tip.GetInputPort("plant_state"))
+    wall = builder.AddNamedSystem(
+        "wall", CompliantWall(scenario.environment, scenario.arm.time_step))
+    builder.Connect(tip.GetOutputPort("tip_state"), wall.GetInputPort("tip_state"))
+    builder.Connect(wall.GetOutputPort("force_on_tip"), tip.GetInputPort("force_on_tip"))
+
+    friction_in, friction_out = AddJointFriction(builder, scenario.joint_friction)
+    builder.Connect(state_port, friction_in)
+    external = builder.AddNamedSystem("external_torque", Adder(2, 3))
+    builder.Connect(tip.GetOutputPort("generalized_force"), external.get_input_port(0))
+    builder.Connect(friction_out, external.get_input_port(1))
+    builder.Connect(external.get_output_port(), plant.get_applied_generalized_force_input_port())
+
+    if scenario.controller.name not in CONTROLLER_ADDERS:
+        raise ScenarioError(f"controller.name = '{scenario.controller.name}' is unknown: "
+                            f"choose one of {', '.join(CONTROLLER_ADDERS)}")
+    torque = CONTROLLER_ADDERS[scenario.controller.name](builder, scenario, plant)
+    saturation = AddTorqueSaturation(builder, scenario.torque_limits)
+    builder.Connect(torque, saturation.get_input_port())
+    builder.Connect(saturation.get_output_port(), plant.get_actuation_input_port())
+
+    encoders = AddEncoders(builder, scenario.encoders)
+    builder.Connect(state_port, encoders.get_input_port())
+
+    exports = {
+        "joint_state_true": state_port,
+        "tip_state_true": tip.GetOutputPort("tip_state"),
+        "contact_force_true": wall.GetOutputPort("contact_force"),
+        "penetration_true": wall.GetOutputPort("penetration"),
+        "true_impedance": wall.GetOutputPort("true_impedance"),
+        "joint_positions_measured": encoders.get_output_port(),
+        "joint_torque_commanded": torque,
+        "joint_torque_applied": saturation.get_output_port(),
+        "joint_friction_torque": friction_out,
+    }
+    assert exports.keys() == EXPORTED_OUTPUTS.keys()
+    for name, port in exports.items():
+        builder.ExportOutput(port, name)
+
+    if meshcat is not None:
+        from pydrake.geometry import MeshcatVisualizer
+        MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat)
+
+    diagram = builder.Build()
+    diagram.set_name("contact_diagram")
+    return diagram
+
+
+def control_steps_per_plant_step(scenario: Scenario) -> int:
+    """How many plant steps make one 1 ms control period."""
+    return int(round(CONTROL_PERIOD / scenario.arm.time_step))

@@ -1,0 +1,81 @@
+"""A simple pushing law for the foundation scenario ``push_constant``.
+
+Not one of the thesis's controllers (those come with the hybrid controller):
+it pushes the tip along +x with a constant force and holds y and phi with a
+task-space PD, mapped to joints by the transpose Jacobian,
+
+    tau = J(q)^T [ f_d - D_x xdot,
+                   K_y (y_d - y) - D_y ydot,
+                   K_phi (phi_d - phi) - D_phi phidot ],
+
+sampled every 1 ms (torque held between samples). It reads the true tip state
+and J from the plant model: it is a test harness for the plant and the wall,
+not a controller under study.
+"""
+
+import dataclasses as dc
+
+import numpy as np
+from pydrake.systems.framework import LeafSystem
+
+from drake_contact.arm import CONTROL_PERIOD, TIP_FRAME
+from drake_contact.errors import ScenarioError
+from drake_contact.tip_kinematics import CalcTipPoseAndJacobian
+
+
+@dc.dataclass
+class PushConfig:
+    """Gains of the constant-force pushing law."""
+
+    # Desired normal force along +x (N).
+    force: float = 20.0
+    # Damping along x (N s/m), limits the impact speed.
+    damping_x: float = 60.0
+    # Stiffness and damping holding y = y_d (N/m, N s/m). The tip's effective
+    # mass along y is only about 0.13 kg near q0: with the 1 ms sample and its
+    # one-sample delay, damping much above 20 chatters.
+    stiffness_y: float = 2000.0
+    damping_y: float = 20.0
+    # Stiffness and damping holding phi = phi_d (N m/rad, N m s/rad); the
+    # effective inertia about phi is about 2.8e-3 kg m^2.
+    stiffness_phi: float = 20.0
+    damping_phi: float = 0.3
+    # Held position y_d (m) and angle phi_d (rad).
+    y_desired: float = 0.0
+    phi_desired: float = 0.0
+
+    def validate(self, prefix="controller.push"):
+        for field in dc.fields(self):
+            value = getattr(self, field.name)
+            if not np.isfinite(value):
+                raise ScenarioError(f"{prefix}.{field.name} = {value} is out of range: must be finite")
+            if field.name.startswith(("damping", "stiffness")) and value < 0:
+                raise ScenarioError(f"{prefix}.{field.name} = {value} is out of range: must be >= 0")
+
+
+class ConstantForcePushController(LeafSystem):
+    """Input: plant_state (6, [q; v]). Output: joint_torque_commanded (3, N m),
+    updated every 1 ms (discrete state)."""
+
+    def __init__(self, plant, config: PushConfig):
+        super().__init__()
+        config.validate()
+        self._config = config
+        self._plant = plant
+        self._scratch = plant.CreateDefaultContext()
+        self._tip = plant.GetFrameByName(TIP_FRAME)
+        self._state = self.DeclareVectorInputPort("plant_state", 6)
+        torque = self.DeclareDiscreteState(3)
+        self.DeclarePeriodicDiscreteUpdateEvent(CONTROL_PERIOD, 0.0, self._update)
+        self.DeclareStateOutputPort("joint_torque_commanded", torque)
+
+    def _update(self, context, discrete_state):
+        c, plant = self._config, self._plant
+        state = self._state.Eval(context)
+        plant.SetPositionsAndVelocities(self._scratch, state)
+        (_, y, phi), J = CalcTipPoseAndJacobian(plant, self._scratch, self._tip)
+        xdot, ydot, phidot = J @ state[3:]
+        wrench = [c.force - c.damping_x * xdot,
+                  c.stiffness_y * (c.y_desired - y) - c.damping_y * ydot,
+                  c.stiffness_phi * (c.phi_desired - phi) - c.damping_phi * phidot]
+        discrete_state.set_value(J.T @ wrench)

@@ -1,0 +1,209 @@
+"""Simulates one scenario and writes its logs, metrics and figures.
+
+:func:`run` is the library entry point (the ``drake-contact run`` command and
+the tests call it). A run writes into its output folder:
+
+* ``scenario.yaml``: the fully resolved scenario, overrides applied;
+* ``log.npz``: 1 kHz signals keyed by name (:data:`LOG_SIGNALS`), plus ``t``;
+* ``metrics.json``: timing, peak force, ground truth and steady-state numbers;
+* ``*.png``: figures of the main signals.
+
+A run that diverges (non-finite state, or a contact force above
+``simulation.force_limit``) or is interrupted (Ctrl-C) still writes all of
+these up to the last logged sample; ``metrics.json`` says why it stopped.
+"""
+
+import dataclasses as dc
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from pydrake.common import RandomGenerator
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import LogVectorOutput
+
+from drake_contact.arm import CONTROL_PERIOD
+from drake_contact.diagram import MakeContactDiagram
+from drake_contact.errors import SimulationDiverged
+from drake_contact.scenario import Scenario, dump_scenario
+
+#: log.npz key -> (exported output port, columns taken from it).
+LOG_SIGNALS = {
+    "tip_pose_true": ("tip_state_true", slice(0, 3)),
+    "tip_velocity_true": ("tip_state_true", slice(3, 6)),
+    "contact_force_true": ("contact_force_true", 0),
+    "penetration_true": ("penetration_true", 0),
+    "true_impedance": ("true_impedance", slice(0, 3)),
+    "joint_positions_true": ("joint_state_true", slice(0, 3)),
+    "joint_velocities_true": ("joint_state_true", slice(3, 6)),
+    "joint_positions_measured": ("joint_positions_measured", slice(0, 3)),
+    "joint_torque_commanded": ("joint_torque_commanded", slice(0, 3)),
+    "joint_torque_applied": ("joint_torque_applied", slice(0, 3)),
+    "joint_friction_torque": ("joint_friction_torque", slice(0, 3)),
+}
+
+#: Simulated seconds between divergence checks and progress reports.
+CHUNK_S = 0.1
+
+
+@dc.dataclass
+class RunResult:
+    """What :func:`run` returns: the logs, the metrics, and how it ended."""
+
+    log: dict
+    metrics: dict
+    status: str  # "completed", "diverged" or "interrupted"
+    message: str = ""
+
+
+def simulate(scenario: Scenario, *, progress=None):
+    """Simulates ``scenario``; returns (log dict, status, message, wall time).
+
+    ``progress(t, duration, wall_s)`` is called after every chunk if given.
+    """
+    builder = DiagramBuilder()
+    station = builder.AddNamedSystem("station", MakeContactDiagram(scenario))
+    loggers = {}
+    for port_name, _ in {v[0]: None for v in LOG_SIGNALS.values()}.items():
+        loggers[port_name] = LogVectorOutput(
+            station.GetOutputPort(port_name), builder, CONTROL_PERIOD)
+        loggers[port_name].set_name(f"log_{port_name}")
+    diagram = builder.Build()
+    diagram.set_name("run")
+
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    diagram.SetRandomContext(context, RandomGenerator(scenario.simulation.seed))
+    duration = scenario.simulation.duration
+    force_limit = scenario.simulation.force_limit
+    status, message = "completed", ""
+    start = time.perf_counter()
+    try:
+        simulator.Initialize()
+        t = 0.0
+        while t < duration - 1e-12:
+            t = min(t + CHUNK_S, duration)
+            simulator.AdvanceTo(t)
+            _check_divergence(loggers, context, force_limit)
+            if progress is not None:
+                progress(t, duration, time.perf_counter() - start)
+    except SimulationDiverged as e:
+        status, message = "diverged", str(e)
+    except KeyboardInterrupt:
+        status, message = "interrupted", f"interrupted at t = {context.get_time():.3f} s"
+    except RuntimeError as e:
+        status = "diverged"
+        message = (f"simulation failed at t = {context.get_time():.3f} s: "
+                   f"{str(e).splitlines()[0]}")
+    wall_s = time.perf_counter() - start
+    log = _collect(loggers, context)
+    if status == "diverged":
+        log = _truncate_at_divergence(log, force_limit)
+    return log, status, message, wall_s
+
+
+def _check_divergence(loggers, context, force_limit):
+    """Raises SimulationDiverged at the first bad sample of the last chunk."""
+    chunk = int(round(CHUNK_S / CONTROL_PERIOD)) + 1
+    state_log = loggers["joint_state_true"].FindLog(context)
+    force_log = loggers["contact_force_true"].FindLog(context)
+    times = state_log.sample_times()[-chunk:]
+    state = state_log.data()[:, -chunk:]
+    force = force_log.data()[0, -chunk:]
+    bad_state = ~np.all(np.isfinite(state), axis=0)
+    bad_force = ~np.isfinite(force) | (force > force_limit)
+    if bad_state.any() or bad_force.any():
+        i = int(np.argmax(bad_state | bad_force))
+        if bad_state[i]:
+            where = "joint_state_true"
+            what = "the arm's state is not finite"
+        else:
+            where = "contact_force_true"
+            what = f"the contact force {force[i]:.4g} N exceeds simulation.force_limit = {force_limit} N"
+        raise SimulationDiverged(
+            f"diverged at t = {times[i]:.3f} s: {what} ({where})", time_s=times[i], where=where)
+
+
+def _truncate_at_divergence(log, force_limit):
+    """Keeps the samples up to and including the first bad one."""
+    bad = ~np.isfinite(log["contact_force_true"]) | (log["contact_force_true"] > force_limit)
+    bad |= ~np.all(np.isfinite(log["joint_positions_true"]), axis=1)
+    if bad.any():
+        stop = int(np.argmax(bad)) + 1
+        log = {k: v[:stop] for k, v in log.items()}
+    return log
+
+
+def _collect(loggers, context):
+    logs = {name: logger.FindLog(context) for name, logger in loggers.items()}
+    n = min(log.num_samples() for log in logs.values())
+    out = {"t": logs["joint_state_true"].sample_times()[:n].copy()}
+    for key, (port_name, columns) in LOG_SIGNALS.items():
+        out[key] = logs[port_name].data()[columns, :n].T.copy()
+    return out
+
+
+def compute_metrics(scenario: Scenario, log: dict, wall_s: float) -> dict:
+    """Timing, peak force, ground truth and steady-state contact numbers."""
+    t = log["t"]
+    simulated = float(t[-1]) if len(t) else 0.0
+    steps = simulated / scenario.arm.time_step
+    env = scenario.environment
+    force = log["contact_force_true"]
+    penetration = log["penetration_true"]
+    metrics = {
+        "simulated_time_s": simulated,
+        "wall_time_s": wall_s,
+        "realtime_factor": simulated / wall_s if wall_s > 0 else float("nan"),
+        "us_per_step": wall_s / steps * 1e6 if steps > 0 else float("nan"),
+        "plant_time_step_s": scenario.arm.time_step,
+        "peak_force_n": float(np.max(force)) if len(force) else 0.0,
+        "true_impedance": {"mass": env.mass, "damping": env.damping, "stiffness": env.stiffness},
+    }
+    window = t >= simulated - scenario.simulation.settle_window
+    contact = window & (penetration > 0)
+    if contact.any():
+        f_mean = float(np.mean(force[contact]))
+        x_mean = float(np.mean(penetration[contact]))
+        K_true = float(np.mean(log["true_impedance"][contact, 2]))
+        metrics["steady_force_n"] = f_mean
+        metrics["steady_penetration_m"] = x_mean
+        metrics["steady_stiffness_ratio_n_per_m"] = f_mean / x_mean
+        metrics["steady_stiffness_error"] = f_mean / x_mean / K_true - 1.0
+    return metrics
+
+
+def run(scenario: Scenario, out_dir, *, progress=None, figures=True) -> RunResult:
+    """Simulates ``scenario`` and writes scenario.yaml, log.npz, metrics.json
+    and figures into ``out_dir`` (created if needed)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "scenario.yaml").write_text(dump_scenario(scenario))
+    log, status, message, wall_s = simulate(scenario, progress=progress)
+    metrics = compute_metrics(scenario, log, wall_s)
+    metrics["status"] = status
+    if message:
+        metrics["message"] = message
+    np.savez(out / "log.npz", **log)
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2, sort_keys=True) + "\n")
+    if figures and len(log["t"]) > 1:
+        from drake_contact.plotting import plot_main_signals
+        plot_main_signals(log, scenario, out)
+    return RunResult(log=log, metrics=metrics, status=status, message=message)
+
+
+def terminal_progress(stream=sys.stderr):
+    """A progress callback printing simulated time and ETA on a terminal,
+    or None when ``stream`` is not one (runs stay quiet in logs and CI)."""
+    if not stream.isatty():
+        return None
+
+    def report(t, duration, wall_s):
+        eta = wall_s * (duration - t) / t if t > 0 else float("nan")
+        end = "\n" if t >= duration else ""
+        stream.write(f"\r  t = {t:7.2f} / {duration:.2f} s   ETA {eta:6.1f} s  {end}")
+        stream.flush()
+    return report

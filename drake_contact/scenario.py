@@ -1,0 +1,235 @@
+"""Scenarios: what to simulate, as typed dataclasses loaded from YAML.
+
+A scenario file is YAML matching :class:`Scenario`; any field left out keeps
+its default (the thesis's value where there is one). Load with
+:func:`load_scenario`, which resolves a bundled name or a path, applies
+``dotted.key=value`` overrides, checks every key and type, and validates every
+range, raising :class:`ScenarioError` with one line naming the field.
+"""
+
+import dataclasses as dc
+import re
+import typing
+from pathlib import Path
+
+import numpy as np
+import yaml
+from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
+
+from drake_contact.arm import ArmConfig
+from drake_contact.compliant_wall import EnvironmentConfig
+from drake_contact.errors import ScenarioError
+from drake_contact.joint_physics import (
+    THESIS_TORQUE_LIMITS, EncoderConfig, JointFrictionConfig)
+from drake_contact.push_controller import PushConfig
+from drake_contact.resources import bundled_scenario_names, scenarios_dir
+
+class _Loader(yaml.SafeLoader):
+    """PyYAML's safe loader, reading YAML 1.2 floats such as ``6.2e4`` or
+    ``1e-3`` as numbers (YAML 1.1 reads them as strings)."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+                   |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+                   |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+                   |[-+]?\.(?:inf|Inf|INF)
+                   |\.(?:nan|NaN|NAN))$""", re.X),
+    list("-+0123456789."))
+
+
+def _yaml_load(text):
+    return yaml.load(text, Loader=_Loader)
+
+
+#: Controllers a scenario can name in ``controller.name``.
+CONTROLLER_NAMES = ("push",)
+
+
+@dc.dataclass
+class ControllerConfig:
+    """Which controller commands the joints, and its parameters."""
+
+    # One of CONTROLLER_NAMES.
+    name: str = "push"
+    # Constant-force pushing law (name: push).
+    push: PushConfig = dc.field(default_factory=PushConfig)
+
+    def validate(self, prefix="controller"):
+        if self.name not in CONTROLLER_NAMES:
+            raise ScenarioError(
+                f"{prefix}.name = '{self.name}' is unknown: choose one of "
+                f"{', '.join(CONTROLLER_NAMES)}")
+        getattr(self, self.name).validate(f"{prefix}.{self.name}")
+
+
+@dc.dataclass
+class SimulationConfig:
+    """How long and how the run goes."""
+
+    # Simulated time (s).
+    duration: float = 5.0
+    # Seed of every random source in the diagram; same seed, same logs.
+    seed: int = 0
+    # The run stops when the true contact force exceeds this (N).
+    force_limit: float = 500.0
+    # Steady-state metrics average over this final window (s).
+    settle_window: float = 0.5
+
+    def validate(self, prefix="simulation"):
+        if not (np.isfinite(self.duration) and self.duration > 0):
+            raise ScenarioError(
+                f"{prefix}.duration = {self.duration} is out of range: must be > 0 s")
+        if self.seed < 0:
+            raise ScenarioError(f"{prefix}.seed = {self.seed} is out of range: must be >= 0")
+        if not (self.force_limit > 0):
+            raise ScenarioError(
+                f"{prefix}.force_limit = {self.force_limit} is out of range: must be > 0 N")
+        if not (0 < self.settle_window <= self.duration):
+            raise ScenarioError(
+                f"{prefix}.settle_window = {self.settle_window} is out of range: "
+                f"must be in (0, duration = {self.duration}] s")
+
+
+@dc.dataclass
+class Scenario:
+    """Everything one run needs. Units are SI throughout."""
+
+    # What this scenario shows (free text).
+    description: str = ""
+    simulation: SimulationConfig = dc.field(default_factory=SimulationConfig)
+    arm: ArmConfig = dc.field(default_factory=ArmConfig)
+    joint_friction: JointFrictionConfig = dc.field(default_factory=JointFrictionConfig)
+    # Controller torque limits per joint (N m), Appendix E.
+    torque_limits: list[float] = dc.field(default_factory=lambda: list(THESIS_TORQUE_LIMITS))
+    encoders: EncoderConfig = dc.field(default_factory=EncoderConfig)
+    environment: EnvironmentConfig = dc.field(default_factory=EnvironmentConfig)
+    controller: ControllerConfig = dc.field(default_factory=ControllerConfig)
+
+    def validate(self):
+        self.simulation.validate()
+        self.arm.validate()
+        self.joint_friction.validate()
+        if len(self.torque_limits) != 3 or not all(
+                np.isfinite(x) and x > 0 for x in self.torque_limits):
+            raise ScenarioError(
+                f"torque_limits = {self.torque_limits} is out of range: "
+                "must be 3 values > 0 N m")
+        self.encoders.validate()
+        self.environment.validate(duration=self.simulation.duration)
+        self.controller.validate()
+
+
+def resolve_scenario_path(name_or_path) -> Path:
+    """A path to an existing file, or the bundled scenario of that name."""
+    path = Path(name_or_path)
+    if path.is_file():
+        return path
+    bundled = scenarios_dir() / f"{name_or_path}.yaml"
+    if bundled.is_file():
+        return bundled
+    raise ScenarioError(
+        f"scenario '{name_or_path}' is neither a file nor a bundled scenario: "
+        f"choose a path or one of {', '.join(bundled_scenario_names())}")
+
+
+def load_scenario(name_or_path, overrides=(), *, duration=None, seed=None) -> Scenario:
+    """Loads, overrides and validates a scenario.
+
+    ``overrides`` are strings ``dotted.key=value`` (value parsed as YAML);
+    ``duration`` and ``seed`` set ``simulation.duration`` and ``.seed``.
+    """
+    path = resolve_scenario_path(name_or_path)
+    try:
+        data = _yaml_load(path.read_text())
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        problem = getattr(e, "problem", None) or str(e).splitlines()[0]
+        raise ScenarioError(f"{path}: malformed YAML{where}: {problem}") from None
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ScenarioError(f"{path}: a scenario must be a YAML mapping of keys, "
+                            f"not a {type(data).__name__}")
+    overrides = list(overrides)
+    if duration is not None:
+        overrides.append(f"simulation.duration={duration}")
+    if seed is not None:
+        overrides.append(f"simulation.seed={seed}")
+    for item in overrides:
+        _apply_override(data, item)
+    return scenario_from_data(data, source=str(path))
+
+
+def scenario_from_data(data: dict, *, source="scenario") -> Scenario:
+    """Checks keys and types of a plain mapping, then loads and validates it."""
+    _check_schema(Scenario, data, prefix="")
+    try:
+        scenario = yaml_load_typed(schema=Scenario, data=yaml.safe_dump(data))
+    except (RuntimeError, ValueError, TypeError) as e:
+        raise ScenarioError(f"{source}: {str(e).splitlines()[0]}") from None
+    scenario.validate()
+    return scenario
+
+
+def dump_scenario(scenario: Scenario) -> str:
+    """The fully resolved scenario as YAML (what a run writes)."""
+    return yaml_dump_typed(scenario)
+
+
+def _apply_override(data: dict, item: str):
+    key, sep, text = item.partition("=")
+    if not sep or not key.strip():
+        raise ScenarioError(f"--set '{item}' is malformed: write dotted.key=value")
+    try:
+        value = _yaml_load(text)
+    except yaml.YAMLError:
+        raise ScenarioError(f"--set '{item}': the value is not valid YAML") from None
+    parts = key.strip().split(".")
+    node = data
+    for part in parts[:-1]:
+        child = node.setdefault(part, {})
+        if not isinstance(child, dict):
+            raise ScenarioError(f"--set '{item}': '{part}' is a value, not a section")
+        node = child
+    node[parts[-1]] = value
+
+
+def _check_schema(schema, data, prefix):
+    """Every key known, every value of the field's type; names the field."""
+    if not isinstance(data, dict):
+        raise ScenarioError(f"{prefix.rstrip('.') or 'scenario'} must be a mapping of keys, "
+                            f"got {data!r}")
+    hints = typing.get_type_hints(schema)
+    for key, value in data.items():
+        name = f"{prefix}{key}"
+        if key not in hints:
+            known = ", ".join(f.name for f in dc.fields(schema))
+            raise ScenarioError(f"{name} is not a scenario key: known keys here are {known}")
+        _check_type(hints[key], value, name)
+
+
+def _check_type(hint, value, name):
+    if dc.is_dataclass(hint):
+        _check_schema(hint, value, prefix=f"{name}.")
+        return
+    origin = typing.get_origin(hint)
+    if origin is list:
+        (item_hint,) = typing.get_args(hint)
+        if not isinstance(value, list):
+            raise ScenarioError(f"{name} = {value!r} must be a list")
+        for i, item in enumerate(value):
+            _check_type(item_hint, item, f"{name}[{i}]")
+        return
+    ok = {
+        float: isinstance(value, (int, float)) and not isinstance(value, bool),
+        int: isinstance(value, int) and not isinstance(value, bool),
+        bool: isinstance(value, bool),
+        str: isinstance(value, str),
+    }.get(hint, True)
+    if not ok:
+        kind = {float: "a number", int: "a whole number", bool: "true or false",
+                str: "a string"}[hint]
+        raise ScenarioError(f"{name} = {value!r} must be {kind}")

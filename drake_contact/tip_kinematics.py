@@ -1,0 +1,68 @@
+"""True tip kinematics of the arm, and the wall's force mapped to joints.
+
+This is the simulator's side (ground truth), not a controller's estimate:
+controllers read the encoder-based estimator instead.
+"""
+
+import numpy as np
+from pydrake.multibody.tree import JacobianWrtVariable
+from pydrake.systems.framework import LeafSystem
+
+from drake_contact.arm import TIP_FRAME
+
+
+def CalcTipPoseAndJacobian(plant, plant_context, tip_frame):
+    """Planar tip pose [x, y, phi] in world and J = d[x, y, phi]/dv (3 x 3).
+
+    ``plant_context`` must already hold the arm's positions.
+    """
+    world = plant.world_frame()
+    J = plant.CalcJacobianSpatialVelocity(
+        plant_context, JacobianWrtVariable.kV, tip_frame, np.zeros(3), world, world)
+    X_WT = tip_frame.CalcPoseInWorld(plant_context)
+    R = X_WT.rotation().matrix()
+    p = X_WT.translation()
+    # Rows vx, vy, wz of the spatial Jacobian [w; v].
+    return np.array([p[0], p[1], np.arctan2(R[1, 0], R[0, 0])]), J[[3, 4, 2], :]
+
+
+class TipKinematics(LeafSystem):
+    """Planar pose/velocity of the ``tip`` frame, and J^T F.
+
+    Input ports:
+      plant_state (6): [q; v] of the arm (rad, rad/s).
+      force_on_tip (3): [f_x, f_y, tau_z] applied at the tip, world (N, N m).
+    Output ports:
+      tip_state (6): [x, y, phi, xdot, ydot, phidot], world (m, rad, /s).
+      generalized_force (3): J(q)^T [f_x, f_y, tau_z] (N m), for the plant's
+        applied_generalized_force input.
+    """
+
+    def __init__(self, plant):
+        super().__init__()
+        self._plant = plant
+        # Scratch context: overwritten from the input on every evaluation, so
+        # it carries no state between calls.
+        self._scratch = plant.CreateDefaultContext()
+        self._tip = plant.GetFrameByName(TIP_FRAME)
+        self._state = self.DeclareVectorInputPort("plant_state", 6)
+        self._force = self.DeclareVectorInputPort("force_on_tip", 3)
+        self.DeclareVectorOutputPort(
+            "tip_state", 6, self._calc_tip_state,
+            prerequisites_of_calc={self._state.ticket()})
+        self.DeclareVectorOutputPort(
+            "generalized_force", 3, self._calc_generalized_force,
+            prerequisites_of_calc={self._state.ticket(), self._force.ticket()})
+
+    def _pose_and_jacobian(self, context):
+        state = self._state.Eval(context)
+        self._plant.SetPositionsAndVelocities(self._scratch, state)
+        return state, *CalcTipPoseAndJacobian(self._plant, self._scratch, self._tip)
+
+    def _calc_tip_state(self, context, output):
+        state, pose, J = self._pose_and_jacobian(context)
+        output.SetFromVector(np.concatenate([pose, J @ state[3:]]))
+
+    def _calc_generalized_force(self, context, output):
+        _, _, J = self._pose_and_jacobian(context)
+        output.SetFromVector(J.T @ self._force.Eval(context))
