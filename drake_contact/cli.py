@@ -55,7 +55,7 @@ def _cmd_run(args):
     m = result.metrics
     print(f"{result.status}: {m['simulated_time_s']:.3f} s simulated in {m['wall_time_s']:.2f} s "
           f"(real-time factor {m['realtime_factor']:.2f}, {m['us_per_step']:.1f} us/step); "
-          f"peak force {m['peak_force_n']:.2f} N; wrote {args.out}")
+          f"peak force {m['peak_force_n']:.4g} N; wrote {args.out}")
     if result.status == "diverged":
         print(f"drake-contact: {result.message}", file=sys.stderr)
         return EXIT_DIVERGED

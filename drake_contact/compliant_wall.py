@@ -32,7 +32,7 @@ import dataclasses as dc
 
 import numpy as np
 from pydrake.common.value import Value
-from pydrake.systems.framework import BasicVector, LeafSystem
+from pydrake.systems.framework import BasicVector, LeafSystem, ValueProducer
 
 from drake_contact.errors import ScenarioError
 
@@ -205,7 +205,6 @@ class CompliantWall(LeafSystem):
 
 
 def _value_producer(calc, size):
-    from pydrake.systems.framework import ValueProducer
     return ValueProducer(
         allocate=Value[BasicVector](BasicVector(size)).Clone,
         calc=lambda context, abstract: calc(context, abstract.get_mutable_value()))

@@ -1,5 +1,7 @@
 """Errors that the command line reports as one line, without a traceback."""
 
+import math
+
 
 class ScenarioError(ValueError):
     """Bad input: names the offending field and its allowed range.
@@ -20,3 +22,17 @@ class SimulationDiverged(RuntimeError):
         super().__init__(message)
         self.time_s = time_s
         self.where = where
+
+
+def require_finite(values, context, where, what="the arm's state"):
+    """Raises SimulationDiverged unless every entry of ``values`` is finite.
+
+    Systems that load a state into a plant context call this first: Drake
+    aborts the process (not an exception) on a non-finite state.
+    """
+    # One sum is finite iff every entry is (inf - inf is nan): cheaper than
+    # np.isfinite(...).all() on a hot path.
+    if not math.isfinite(float(values.sum())):
+        t = context.get_time()
+        raise SimulationDiverged(
+            f"diverged at t = {t:.3f} s: {what} is not finite ({where})", time_s=t, where=where)

@@ -19,7 +19,7 @@ import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from drake_contact.arm import CONTROL_PERIOD, TIP_FRAME
-from drake_contact.errors import ScenarioError
+from drake_contact.errors import ScenarioError, require_finite
 from drake_contact.tip_kinematics import CalcTipPoseAndJacobian
 
 
@@ -72,6 +72,7 @@ class ConstantForcePushController(LeafSystem):
     def _update(self, context, discrete_state):
         c, plant = self._config, self._plant
         state = self._state.Eval(context)
+        require_finite(state, context, "controller")
         plant.SetPositionsAndVelocities(self._scratch, state)
         (_, y, phi), J = CalcTipPoseAndJacobian(plant, self._scratch, self._tip)
         xdot, ydot, phidot = J @ state[3:]

@@ -120,6 +120,9 @@ def _check_divergence(loggers, context, force_limit):
         if bad_state[i]:
             where = "joint_state_true"
             what = "the arm's state is not finite"
+        elif not np.isfinite(force[i]):
+            where = "contact_force_true"
+            what = "the contact force is not finite"
         else:
             where = "contact_force_true"
             what = f"the contact force {force[i]:.4g} N exceeds simulation.force_limit = {force_limit} N"

@@ -6,9 +6,11 @@ controllers read the encoder-based estimator instead.
 
 import numpy as np
 from pydrake.multibody.tree import JacobianWrtVariable
-from pydrake.systems.framework import LeafSystem
+from pydrake.common.value import Value
+from pydrake.systems.framework import BasicVector, LeafSystem, ValueProducer
 
 from drake_contact.arm import TIP_FRAME
+from drake_contact.errors import require_finite
 
 
 def CalcTipPoseAndJacobian(plant, plant_context, tip_frame):
@@ -47,6 +49,13 @@ class TipKinematics(LeafSystem):
         self._tip = plant.GetFrameByName(TIP_FRAME)
         self._state = self.DeclareVectorInputPort("plant_state", 6)
         self._force = self.DeclareVectorInputPort("force_on_tip", 3)
+        # [x, y, phi, J (row-major 3 x 3)], computed once per plant state.
+        self._kinematics = self.DeclareCacheEntry(
+            description="tip pose and Jacobian",
+            value_producer=ValueProducer(
+                allocate=Value[BasicVector](BasicVector(12)).Clone,
+                calc=self._calc_kinematics),
+            prerequisites_of_calc={self._state.ticket()})
         self.DeclareVectorOutputPort(
             "tip_state", 6, self._calc_tip_state,
             prerequisites_of_calc={self._state.ticket()})
@@ -54,10 +63,16 @@ class TipKinematics(LeafSystem):
             "generalized_force", 3, self._calc_generalized_force,
             prerequisites_of_calc={self._state.ticket(), self._force.ticket()})
 
-    def _pose_and_jacobian(self, context):
+    def _calc_kinematics(self, context, abstract):
         state = self._state.Eval(context)
+        require_finite(state, context, "tip_kinematics")
         self._plant.SetPositionsAndVelocities(self._scratch, state)
-        return state, *CalcTipPoseAndJacobian(self._plant, self._scratch, self._tip)
+        pose, J = CalcTipPoseAndJacobian(self._plant, self._scratch, self._tip)
+        abstract.get_mutable_value().set_value(np.concatenate([pose, J.ravel()]))
+
+    def _pose_and_jacobian(self, context):
+        kinematics = self._kinematics.Eval(context).value()
+        return self._state.Eval(context), kinematics[:3], kinematics[3:].reshape(3, 3)
 
     def _calc_tip_state(self, context, output):
         state, pose, J = self._pose_and_jacobian(context)

@@ -1,0 +1,103 @@
+"""The whole diagram: push_constant physics, repeatability, divergence."""
+
+import json
+
+import numpy as np
+import pytest
+
+from drake_contact.diagram import EXPORTED_OUTPUTS, MakeContactDiagram
+from drake_contact.errors import ScenarioError
+from drake_contact.runner import LOG_SIGNALS, run
+from drake_contact.scenario import load_scenario
+
+
+def test_diagram_exports_its_named_outputs():
+    diagram = MakeContactDiagram(load_scenario("push_constant"))
+    assert diagram.get_name() == "contact_diagram"
+    for name, (size, _) in EXPORTED_OUTPUTS.items():
+        assert diagram.GetOutputPort(name).size() == size
+    names = {diagram.GetSubsystemByName(n).get_name() for n in (
+        "plant", "wall", "tip_kinematics", "controller", "torque_saturation",
+        "joint_friction", "encoders")}
+    assert len(names) == 7
+
+
+@pytest.mark.parametrize("stiffness", [7e3, 6.2e4])
+def test_push_constant_settles_at_force_over_penetration_equal_to_stiffness(tmp_path, stiffness):
+    scenario = load_scenario("push_constant", [f"environment.stiffness={stiffness}"])
+    result = run(scenario, tmp_path, figures=False)
+    m = result.metrics
+    assert result.status == "completed"
+    assert abs(m["steady_stiffness_ratio_n_per_m"] / stiffness - 1) < 0.02
+    # A real push, not a graze: most of the 20 N arrives through friction.
+    assert 15.0 < m["steady_force_n"] < 21.0
+    # The tip is at rest in the settle window.
+    settle = result.log["t"] > scenario.simulation.duration - scenario.simulation.settle_window
+    assert np.max(np.abs(result.log["tip_velocity_true"][settle, 0])) < 1e-3
+    # Outputs on disk.
+    for name in ("scenario.yaml", "log.npz", "metrics.json"):
+        assert (tmp_path / name).is_file()
+    on_disk = json.loads((tmp_path / "metrics.json").read_text())
+    assert on_disk["true_impedance"]["stiffness"] == stiffness
+    for key in ("wall_time_s", "realtime_factor", "peak_force_n"):
+        assert on_disk[key] > 0
+    log = np.load(tmp_path / "log.npz")
+    n = len(log["t"])
+    assert n == 1 + round(scenario.simulation.duration / 1e-3)
+    assert log["tip_pose_true"].shape == (n, 3)
+    assert log["joint_torque_commanded"].shape == (n, 3)
+    assert set(LOG_SIGNALS) | {"t"} == set(log.files)
+
+
+@pytest.mark.parametrize("overrides", [
+    ["environment.stiffness=1e6", "environment.mass=1.0"],
+    ["environment.stiffness=1e3", "environment.mass=0", "environment.damping=0"],
+    ["environment.stiffness=1e6", "environment.mass=0", "environment.damping=0"],
+    ["arm.time_step=1e-4", "environment.stiffness=6.2e4"],
+])
+def test_arm_on_wall_is_stable_at_the_extremes(tmp_path, overrides):
+    scenario = load_scenario("push_constant", overrides, duration=2.0)
+    result = run(scenario, tmp_path, figures=False)
+    assert result.status == "completed"
+    K = scenario.environment.stiffness
+    settle = result.log["t"] > 1.5
+    ratio = result.log["contact_force_true"][settle] / result.log["penetration_true"][settle]
+    assert np.all(np.abs(ratio / K - 1) < 0.02)
+
+
+def test_same_scenario_and_seed_give_bit_identical_logs(tmp_path):
+    scenario = load_scenario("push_constant", duration=1.0, seed=3)
+    run(scenario, tmp_path / "a", figures=False)
+    run(scenario, tmp_path / "b", figures=False)
+    a, b = np.load(tmp_path / "a" / "log.npz"), np.load(tmp_path / "b" / "log.npz")
+    for key in a.files:
+        assert a[key].tobytes() == b[key].tobytes(), key
+
+
+def test_runaway_force_stops_with_time_and_keeps_the_logs(tmp_path):
+    scenario = load_scenario("push_constant", ["environment.stiffness=1e9"])
+    result = run(scenario, tmp_path, figures=False)
+    assert result.status == "diverged"
+    assert "diverged at t = 0.06" in result.message
+    assert "exceeds simulation.force_limit = 500.0 N" in result.message
+    log = np.load(tmp_path / "log.npz")
+    assert 0.05 < log["t"][-1] < 0.07
+    assert log["contact_force_true"][-1] > 500.0
+    assert np.all(log["contact_force_true"][:-1] <= 500.0)
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["status"] == "diverged" and "t = 0.06" in metrics["message"]
+
+
+def test_non_finite_force_stops_with_time(tmp_path):
+    scenario = load_scenario("push_constant", ["environment.stiffness=1e308",
+                                               "simulation.force_limit=.inf"])
+    result = run(scenario, tmp_path, figures=False)
+    assert result.status == "diverged"
+    assert "diverged at t = 0.06" in result.message and "is not finite" in result.message
+    assert len(np.load(tmp_path / "log.npz")["t"]) > 50
+
+
+def test_unstable_friction_setting_is_refused_before_simulating():
+    scenario = load_scenario("push_constant", ["joint_friction.regularization_velocity=0.002"])
+    with pytest.raises(ScenarioError, match="joint 1 needs"):
+        MakeContactDiagram(scenario)

@@ -1,0 +1,66 @@
+"""Coulomb friction, torque saturation and encoders (Drake primitives)."""
+
+import numpy as np
+import pytest
+from pydrake.systems.framework import DiagramBuilder
+
+from drake_contact.errors import ScenarioError
+from drake_contact.joint_physics import (
+    AddEncoders, AddJointFriction, AddTorqueSaturation, EncoderConfig,
+    JointFrictionConfig, check_friction_stability)
+
+
+def friction_diagram(config):
+    builder = DiagramBuilder()
+    inp, out = AddJointFriction(builder, config)
+    builder.ExportInput(inp, "state")
+    builder.ExportOutput(out, "torque")
+    diagram = builder.Build()
+    return diagram, diagram.CreateDefaultContext()
+
+
+def test_friction_is_coulomb_outside_the_band_and_linear_inside():
+    config = JointFrictionConfig(levels=[4.41, 0.98, 0.05], regularization_velocity=0.02)
+    diagram, context = friction_diagram(config)
+    for v in ([1.0, -0.5, 0.3], [0.01, -0.005, 0.0], [-0.02, 0.02, -1e-3]):
+        diagram.get_input_port().FixValue(context, np.concatenate([[0.3, 1.0, -0.7], v]))
+        expected = -np.clip(np.array(v) / 0.02, -1, 1) * np.array(config.levels)
+        np.testing.assert_allclose(diagram.get_output_port().Eval(context), expected)
+
+
+def test_friction_off_gives_zero_torque():
+    diagram, context = friction_diagram(JointFrictionConfig(enabled=False))
+    diagram.get_input_port().FixValue(context, [0, 0, 0, 1.0, -1.0, 2.0])
+    np.testing.assert_array_equal(diagram.get_output_port().Eval(context), 0.0)
+
+
+def test_unstable_regularization_is_refused():
+    # The thesis's compensation band, 0.002 rad/s, is too sharp for the
+    # plant's explicit friction at a 1 ms step, and fine at 0.1 ms.
+    config = JointFrictionConfig(regularization_velocity=0.002)
+    with pytest.raises(ScenarioError, match=r"joint_friction.regularization_velocity = 0.002 "
+                       r"is out of range at arm.time_step = 0.001: joint 1 needs > 0.00428"):
+        check_friction_stability(config, [1.03, 0.117, 0.00287], 1e-3)
+    check_friction_stability(config, [1.03, 0.117, 0.00287], 1e-4)
+
+
+def test_torque_saturation_clamps_at_the_thesis_limits():
+    builder = DiagramBuilder()
+    saturation = AddTorqueSaturation(builder, [16.0, 2.5, 0.6])
+    context = saturation.CreateDefaultContext()
+    saturation.get_input_port().FixValue(context, [20.0, -3.0, 0.1])
+    np.testing.assert_allclose(saturation.get_output_port().Eval(context), [16.0, -2.5, 0.1])
+
+
+def test_encoders_quantize_to_counts_per_revolution():
+    builder = DiagramBuilder()
+    encoders = AddEncoders(builder, EncoderConfig())
+    context = encoders.CreateDefaultContext()
+    q = np.array([0.1234567, -0.7654321, 0.5])
+    encoders.get_input_port().FixValue(context, np.concatenate([q, [9, 9, 9]]))
+    measured = encoders.get_output_port().Eval(context)
+    steps = 2 * np.pi / np.array([614400, 409600, 2000])
+    # Truncation to whole counts: never more than one count off, and on the grid.
+    assert np.all(np.abs(measured - q) < steps)
+    np.testing.assert_allclose(measured / steps, np.round(measured / steps), atol=1e-6)
+    assert abs(measured[2] - q[2]) > 1e-4  # joint 3 is visibly coarse
