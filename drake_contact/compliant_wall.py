@@ -96,8 +96,10 @@ class EnvironmentConfig:
                 f"must keep K_e > 0 over the run: > {-1 / duration:.4g} 1/s")
 
 
-# Indices into the wall's discrete state.
-_S, _SD, _ACC, _VPREV = range(4)
+# Indices into the wall's discrete state. K_e(t) is state (updated every
+# step) so that nothing the wall outputs depends on time: the sensor's fine
+# 12 kHz clock then reuses the cached force instead of calling Python.
+_S, _SD, _ACC, _VPREV, _K = range(5)
 
 
 class CompliantWall(LeafSystem):
@@ -111,8 +113,8 @@ class CompliantWall(LeafSystem):
       contact_force (1): true normal force f >= 0 (N).
       penetration (1): true surface displacement xe (m), 0 out of contact.
       true_impedance (3): [M_e, B_e, K_e(t)] (kg, N s/m, N/m), for scoring.
-    State (discrete, 4): free-surface displacement and velocity, smoothed tip
-      acceleration, previous tip x-velocity.
+    State (discrete, 5): free-surface displacement and velocity, smoothed tip
+      acceleration, previous tip x-velocity, K_e at this step.
     """
 
     def __init__(self, config: EnvironmentConfig, time_step: float):
@@ -121,17 +123,19 @@ class CompliantWall(LeafSystem):
         self._config = config
         self._h = float(time_step)
         self._tip = self.DeclareVectorInputPort("tip_state", 6)
-        self.DeclareDiscreteState(4)
+        self.DeclareDiscreteState([0.0, 0.0, 0.0, 0.0, config.stiffness])
         self.DeclarePeriodicDiscreteUpdateEvent(self._h, 0.0, self._update)
-        # All outputs share one evaluation of the contact law per context.
+        # All outputs share one evaluation of the contact law, which reads the
+        # input and the state only (not time).
         self._law_cache = self.DeclareCacheEntry(
             description="contact law",
             value_producer=_value_producer(self._calc_law, 9),
-            prerequisites_of_calc={self.all_sources_ticket()})
-        self.DeclareVectorOutputPort("force_on_tip", 3, self._calc_force_on_tip)
-        self.DeclareVectorOutputPort("contact_force", 1, self._calc_contact_force)
-        self.DeclareVectorOutputPort("penetration", 1, self._calc_penetration)
-        self.DeclareVectorOutputPort("true_impedance", 3, self._calc_true_impedance)
+            prerequisites_of_calc={self._tip.ticket(), self.xd_ticket()})
+        law = {self._law_cache.ticket()}
+        self.DeclareVectorOutputPort("force_on_tip", 3, self._calc_force_on_tip, law)
+        self.DeclareVectorOutputPort("contact_force", 1, self._calc_contact_force, law)
+        self.DeclareVectorOutputPort("penetration", 1, self._calc_penetration, law)
+        self.DeclareVectorOutputPort("true_impedance", 3, self._calc_true_impedance, law)
 
     @property
     def config(self) -> EnvironmentConfig:
@@ -146,7 +150,7 @@ class CompliantWall(LeafSystem):
         c = self._config
         x, _, _, vx, vy, _ = self._tip.Eval(context)
         state = context.get_discrete_state_vector().value()
-        K = self.stiffness_at(context.get_time())
+        K = state[_K]
         xe = x - c.surface_x
         touching = xe > 0.0 and xe >= state[_S]
         fn = 0.0
@@ -201,7 +205,8 @@ class CompliantWall(LeafSystem):
             s, sd = self._free_step(old[_S], old[_SD], K)
         alpha = c.acceleration_smoothing
         acc = alpha * old[_ACC] + (1.0 - alpha) * (vx - old[_VPREV]) / h
-        discrete_state.set_value([s, sd, acc, vx])
+        K_next = self.stiffness_at(context.get_time() + h)
+        discrete_state.set_value([s, sd, acc, vx, K_next])
 
 
 def _value_producer(calc, size):

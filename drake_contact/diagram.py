@@ -4,7 +4,8 @@
     plant.state --> tip_kinematics --tip_state--> wall --force_on_tip--+
     plant.state --> joint_friction ------------------------------------+--> adder
     adder (J^T F_wall + tau_friction) --> plant.applied_generalized_force
-    plant.state --> encoders (quantized q)
+    plant.state --> encoders (quantized q) --> estimator --> tip pose/velocity/acceleration
+    wall.force_on_tip --> force_sensor (FS6-120A, analog on a 12 kHz grid) --> dsp --> force
 
 Every signal a run logs is an exported output port of the diagram, named
 ``<what>`` with units in :data:`EXPORTED_OUTPUTS`.
@@ -14,9 +15,12 @@ import numpy as np
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import Adder
 
-from drake_contact.arm import CONTROL_PERIOD, AddArmPlant
+from drake_contact.arm import CONTROL_PERIOD, AddArmPlant, MakeArmModel
 from drake_contact.compliant_wall import CompliantWall
+from drake_contact.dsp import AddDspForceInput
 from drake_contact.errors import ScenarioError
+from drake_contact.estimator import AddKinematicEstimator
+from drake_contact.force_sensor import AddForceSensor
 from drake_contact.joint_physics import (
     AddEncoders, AddJointFriction, AddTorqueSaturation, check_friction_stability)
 from drake_contact.push_controller import ConstantForcePushController
@@ -34,6 +38,18 @@ EXPORTED_OUTPUTS = {
     "joint_torque_commanded": (3, "controller's torque before saturation (N m)"),
     "joint_torque_applied": (3, "torque after saturation, into the plant (N m)"),
     "joint_friction_torque": (3, "Coulomb friction torque on the joints (N m)"),
+    "force_measured": (1, "DSP force after ADC, scale, sign and tare (N)"),
+    "force_filtered": (1, "force_measured through the 120 Hz Butterworth (N)"),
+    "tip_pose_measured": (3, "estimated tip [x, y, phi] from encoders (m, rad)"),
+    "tip_velocity_measured": (3, "estimated tip velocity (m/s, rad/s)"),
+    "tip_acceleration_measured": (3, "estimated tip acceleration (m/s^2, rad/s^2)"),
+    "joint_positions_estimated": (3, "q1, q2 as read, q3 filtered (rad)"),
+    "joint_velocities_estimated": (3, "joint velocities by backward differences (rad/s)"),
+}
+
+#: Exported only when the scenario has them: name -> (size, meaning).
+OPTIONAL_OUTPUTS = {
+    "force_measured_antialiased": (1, "second DSP channel through the 190 Hz RC filter (N)"),
 }
 
 
@@ -90,6 +106,17 @@ def MakeContactDiagram(scenario: Scenario, *, meshcat=None):
 
     encoders = AddEncoders(builder, scenario.encoders)
     builder.Connect(state_port, encoders.get_input_port())
+    estimator = AddKinematicEstimator(builder, MakeArmModel(), scenario.estimator)
+    builder.Connect(encoders.get_output_port(), estimator["joint_positions_measured"])
+
+    sensor = AddForceSensor(builder, scenario.force_sensor)
+    builder.Connect(wall.GetOutputPort("force_on_tip"), sensor["wrench"])
+    builder.Connect(tip.GetOutputPort("tip_state"), sensor["tip_state"])
+    dsp = AddDspForceInput(builder, scenario.dsp, scenario.force_sensor.fine_period,
+                           sensor["voltage_frame"].size())
+    builder.Connect(sensor["voltage"], dsp["voltage"])
+    if "voltage_frame" in dsp:
+        builder.Connect(sensor["voltage_frame"], dsp["voltage_frame"])
 
     exports = {
         "joint_state_true": state_port,
@@ -101,8 +128,17 @@ def MakeContactDiagram(scenario: Scenario, *, meshcat=None):
         "joint_torque_commanded": torque,
         "joint_torque_applied": saturation.get_output_port(),
         "joint_friction_torque": friction_out,
+        "force_measured": dsp["force_measured"],
+        "force_filtered": dsp["force_filtered"],
+        "tip_pose_measured": estimator["tip_pose"],
+        "tip_velocity_measured": estimator["tip_velocity"],
+        "tip_acceleration_measured": estimator["tip_acceleration"],
+        "joint_positions_estimated": estimator["joint_positions"],
+        "joint_velocities_estimated": estimator["joint_velocities"],
     }
     assert exports.keys() == EXPORTED_OUTPUTS.keys()
+    if "force_measured_antialiased" in dsp:
+        exports["force_measured_antialiased"] = dsp["force_measured_antialiased"]
     for name, port in exports.items():
         builder.ExportOutput(port, name)
 

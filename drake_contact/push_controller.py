@@ -27,8 +27,10 @@ from drake_contact.tip_kinematics import CalcTipPoseAndJacobian
 class PushConfig:
     """Gains of the constant-force pushing law."""
 
-    # Desired normal force along +x (N).
+    # Desired normal force along +x (N), applied from start_time (s) on;
+    # before it the arm holds still (only the damping and the y, phi PD act).
     force: float = 20.0
+    start_time: float = 0.0
     # Damping along x (N s/m), limits the impact speed.
     damping_x: float = 60.0
     # Stiffness and damping holding y = y_d (N/m, N s/m). The tip's effective
@@ -49,7 +51,7 @@ class PushConfig:
             value = getattr(self, field.name)
             if not np.isfinite(value):
                 raise ScenarioError(f"{prefix}.{field.name} = {value} is out of range: must be finite")
-            if field.name.startswith(("damping", "stiffness")) and value < 0:
+            if field.name.startswith(("damping", "stiffness", "start")) and value < 0:
                 raise ScenarioError(f"{prefix}.{field.name} = {value} is out of range: must be >= 0")
 
 
@@ -76,7 +78,8 @@ class ConstantForcePushController(LeafSystem):
         plant.SetPositionsAndVelocities(self._scratch, state)
         (_, y, phi), J = CalcTipPoseAndJacobian(plant, self._scratch, self._tip)
         xdot, ydot, phidot = J @ state[3:]
-        wrench = [c.force - c.damping_x * xdot,
+        force = c.force if context.get_time() >= c.start_time - 1e-9 else 0.0
+        wrench = [force - c.damping_x * xdot,
                   c.stiffness_y * (c.y_desired - y) - c.damping_y * ydot,
                   c.stiffness_phi * (c.phi_desired - phi) - c.damping_phi * phidot]
         discrete_state.set_value(J.T @ wrench)

@@ -30,7 +30,8 @@ from drake_contact.diagram import MakeContactDiagram
 from drake_contact.errors import SimulationDiverged
 from drake_contact.scenario import Scenario, dump_scenario
 
-#: log.npz key -> (exported output port, columns taken from it).
+#: log.npz key -> (exported output port, columns taken from it). Keys whose
+#: port the scenario's diagram does not export are left out of the log.
 LOG_SIGNALS = {
     "tip_pose_true": ("tip_state_true", slice(0, 3)),
     "tip_velocity_true": ("tip_state_true", slice(3, 6)),
@@ -43,6 +44,14 @@ LOG_SIGNALS = {
     "joint_torque_commanded": ("joint_torque_commanded", slice(0, 3)),
     "joint_torque_applied": ("joint_torque_applied", slice(0, 3)),
     "joint_friction_torque": ("joint_friction_torque", slice(0, 3)),
+    "force_measured": ("force_measured", 0),
+    "force_filtered": ("force_filtered", 0),
+    "force_measured_antialiased": ("force_measured_antialiased", 0),
+    "tip_pose_measured": ("tip_pose_measured", slice(0, 3)),
+    "tip_velocity_measured": ("tip_velocity_measured", slice(0, 3)),
+    "tip_acceleration_measured": ("tip_acceleration_measured", slice(0, 3)),
+    "joint_positions_estimated": ("joint_positions_estimated", slice(0, 3)),
+    "joint_velocities_estimated": ("joint_velocities_estimated", slice(0, 3)),
 }
 
 #: Simulated seconds between divergence checks and progress reports.
@@ -67,7 +76,9 @@ def simulate(scenario: Scenario, *, progress=None):
     builder = DiagramBuilder()
     station = builder.AddNamedSystem("station", MakeContactDiagram(scenario))
     loggers = {}
-    for port_name, _ in {v[0]: None for v in LOG_SIGNALS.values()}.items():
+    for port_name in dict.fromkeys(v[0] for v in LOG_SIGNALS.values()):
+        if not station.HasOutputPort(port_name):
+            continue
         loggers[port_name] = LogVectorOutput(
             station.GetOutputPort(port_name), builder, CONTROL_PERIOD)
         loggers[port_name].set_name(f"log_{port_name}")
@@ -145,7 +156,8 @@ def _collect(loggers, context):
     n = min(log.num_samples() for log in logs.values())
     out = {"t": logs["joint_state_true"].sample_times()[:n].copy()}
     for key, (port_name, columns) in LOG_SIGNALS.items():
-        out[key] = logs[port_name].data()[columns, :n].T.copy()
+        if port_name in logs:
+            out[key] = logs[port_name].data()[columns, :n].T.copy()
     return out
 
 

@@ -18,6 +18,9 @@ from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 
 from drake_contact.arm import ArmConfig
 from drake_contact.compliant_wall import EnvironmentConfig
+from drake_contact.dsp import DspConfig
+from drake_contact.estimator import EstimatorConfig
+from drake_contact.force_sensor import ForceSensorConfig
 from drake_contact.errors import ScenarioError
 from drake_contact.joint_physics import (
     THESIS_TORQUE_LIMITS, EncoderConfig, JointFrictionConfig)
@@ -105,6 +108,9 @@ class Scenario:
     torque_limits: list[float] = dc.field(default_factory=lambda: list(THESIS_TORQUE_LIMITS))
     encoders: EncoderConfig = dc.field(default_factory=EncoderConfig)
     environment: EnvironmentConfig = dc.field(default_factory=EnvironmentConfig)
+    force_sensor: ForceSensorConfig = dc.field(default_factory=ForceSensorConfig)
+    dsp: DspConfig = dc.field(default_factory=DspConfig)
+    estimator: EstimatorConfig = dc.field(default_factory=EstimatorConfig)
     controller: ControllerConfig = dc.field(default_factory=ControllerConfig)
 
     def validate(self):
@@ -118,6 +124,9 @@ class Scenario:
                 "must be 3 values > 0 N m")
         self.encoders.validate()
         self.environment.validate(duration=self.simulation.duration)
+        self.force_sensor.validate()
+        self.dsp.validate()
+        self.estimator.validate()
         self.controller.validate()
 
 

@@ -1,0 +1,139 @@
+"""The DSP's kinematic estimator at 1 kHz (thesis chapter 4, Appendix E).
+
+From the quantized encoder angles q_m:
+
+1. q3 through the 35 Hz Butterworth (the 2,000-count encoder of joint 3 is
+   coarse), q1 and q2 as read: q_hat = (q1_m, q2_m, F(q3_m));
+2. the tip pose x_hat = FK(q_hat) from the controller's model of the arm;
+3. velocity = F((x_hat[n] - x_hat[n-1]) / T), acceleration = F of the backward
+   difference of the unfiltered velocity; F is the 35 Hz filter (SPEC §4);
+4. joint velocities for the controllers' dynamic model: backward differences
+   of q_hat, joint 3's through F (as the thesis's code; joints 1-2 unfiltered).
+
+Controllers and identifiers read these outputs, never the true state.
+Filters and differences are Drake ``LinearSystem``s; only the forward
+kinematics is Python. Lag: for a signal of frequency w the velocity lags by
+the backward difference's half sample plus the 35 Hz filter's group delay
+(6.4 ms at low frequency): see :func:`velocity_lag_s`.
+"""
+
+import dataclasses as dc
+
+import numpy as np
+from pydrake.systems.framework import DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import Demultiplexer, LinearSystem
+from scipy import signal
+
+from drake_contact.arm import CONTROL_PERIOD, TIP_FRAME
+from drake_contact.errors import ScenarioError, require_finite
+from drake_contact.filters import butterworth_digital, differencing_filter_system
+from drake_contact.tip_kinematics import CalcTipPoseAndJacobian
+
+
+@dc.dataclass
+class EstimatorConfig:
+    """The kinematic estimator's filter."""
+
+    # Cut-off of the 2nd-order Butterworth on q3, velocities and
+    # accelerations (Hz), at 1 kHz.
+    cutoff_hz: float = 35.0
+
+    def validate(self, prefix="estimator"):
+        if not (0 < self.cutoff_hz < 500):
+            raise ScenarioError(
+                f"{prefix}.cutoff_hz = {self.cutoff_hz} is out of range: must be in (0, 500) Hz")
+
+
+def velocity_lag_s(cutoff_hz, frequency_hz, period=CONTROL_PERIOD):
+    """Predicted lag (s) of the estimated velocity behind the true one for a
+    sinusoid: half a sample of backward difference plus the filter's group
+    delay at that frequency."""
+    b, a = butterworth_digital(cutoff_hz, 1.0 / period)
+    _, gd = signal.group_delay((b, a), w=[frequency_hz], fs=1.0 / period)
+    return 0.5 * period + float(gd[0]) * period
+
+
+class ForwardKinematics(LeafSystem):
+    """Input: joint_positions (3, rad). Output: tip_pose (3: x, y, phi; m, rad)
+    by the given plant model (a controller's model of the arm)."""
+
+    def __init__(self, plant_model):
+        super().__init__()
+        self._plant = plant_model
+        self._scratch = plant_model.CreateDefaultContext()
+        self._tip = plant_model.GetFrameByName(TIP_FRAME)
+        self._memo_q = None
+        self._memo_pose = None
+        self._q = self.DeclareVectorInputPort("joint_positions", 3)
+        self.DeclareVectorOutputPort("tip_pose", 3, self._calc,
+                                     prerequisites_of_calc={self._q.ticket()})
+
+    def _calc(self, context, output):
+        q = self._q.Eval(context)
+        # Value memo of a pure function (see TipKinematics): skips the
+        # repeated evaluations Drake makes within one step.
+        if self._memo_q is None or not np.array_equal(q, self._memo_q):
+            require_finite(q, context, "estimator")
+            self._plant.SetPositions(self._scratch, q)
+            self._memo_pose, _ = CalcTipPoseAndJacobian(self._plant, self._scratch, self._tip)
+            self._memo_q = q.copy()
+        output.SetFromVector(self._memo_pose)
+
+
+def _joint_filters(b, a, period):
+    """One LinearSystem: input q_m (3); outputs [q_hat (3), qdot_hat (3)].
+
+    q_hat = (q1, q2, F q3); qdot_hat = ((1 - z^-1)/T) q_hat with joint 3's
+    difference also through F."""
+    diff = np.array([1.0, -1.0]) / period
+    channels = [
+        ([1.0], [1.0]),                                        # q1
+        ([1.0], [1.0]),                                        # q2
+        (b, a),                                                # F q3
+        (diff, [1.0, 0.0]),                                    # q1 diff
+        (diff, [1.0, 0.0]),                                    # q2 diff
+        (np.polymul(np.polymul(b, diff), b), np.polymul(np.polymul(a, [1.0, 0.0]), a)),
+    ]
+    inputs = [0, 1, 2, 0, 1, 2]
+    blocks = [signal.tf2ss(num, den) for num, den in channels]
+    n = sum(blk[0].shape[0] for blk in blocks)
+    A = np.zeros((n, n))
+    B = np.zeros((n, 3))
+    C = np.zeros((6, n))
+    D = np.zeros((6, 3))
+    i = 0
+    for out, ((a_, b_, c_, d_), inp) in enumerate(zip(blocks, inputs)):
+        m = a_.shape[0]
+        A[i:i + m, i:i + m] = a_
+        B[i:i + m, inp] = b_[:, 0] if m else 0.0
+        C[out, i:i + m] = c_[0] if m else 0.0
+        D[out, inp] = d_[0, 0]
+        i += m
+    return LinearSystem(A, B, C, D, period)
+
+
+def AddKinematicEstimator(builder: DiagramBuilder, plant_model, config: EstimatorConfig, *,
+                          name="estimator"):
+    """Adds the estimator; returns a dict of ports: ``joint_positions_measured``
+    (input, 3) and outputs ``tip_pose`` (3), ``tip_velocity`` (3),
+    ``tip_acceleration`` (3), ``joint_positions`` (3: q_hat), ``joint_velocities`` (3)."""
+    config.validate()
+    b, a = butterworth_digital(config.cutoff_hz, 1.0 / CONTROL_PERIOD)
+    joints = builder.AddNamedSystem(f"{name}_joint_filters", _joint_filters(b, a, CONTROL_PERIOD))
+    split = builder.AddNamedSystem(f"{name}_joint_split", Demultiplexer([3, 3]))
+    fk = builder.AddNamedSystem(f"{name}_forward_kinematics", ForwardKinematics(plant_model))
+    rates = builder.AddNamedSystem(
+        f"{name}_tip_rates", differencing_filter_system(b, a, CONTROL_PERIOD, channels=3))
+    rates_split = builder.AddNamedSystem(f"{name}_tip_rates_split", Demultiplexer([3, 3]))
+    builder.Connect(joints.get_output_port(), split.get_input_port())
+    builder.Connect(split.get_output_port(0), fk.GetInputPort("joint_positions"))
+    builder.Connect(fk.GetOutputPort("tip_pose"), rates.get_input_port())
+    builder.Connect(rates.get_output_port(), rates_split.get_input_port())
+    return {
+        "joint_positions_measured": joints.get_input_port(),
+        "tip_pose": fk.GetOutputPort("tip_pose"),
+        "tip_velocity": rates_split.get_output_port(0),
+        "tip_acceleration": rates_split.get_output_port(1),
+        "joint_positions": split.get_output_port(0),
+        "joint_velocities": split.get_output_port(1),
+    }

@@ -1,0 +1,263 @@
+"""The FS6-120A wrist force sensor (thesis chapter 3, SPEC §4), as analog.
+
+Signal chain per channel (we model the planar channels Fx, Fy, Tz; the DSP
+reads only Fx):
+
+1. strain gauges: the tip wrench plus gauge noise (white, Gaussian), through
+   a 3rd-order analog Butterworth low-pass at 120 Hz;
+2. the sensor's internal 12-bit ADC samples every 1/480 s (2.08 ms loop),
+   rotates into the sensor frame, multiplies by the calibration matrix
+   (decoupling; identity by default, cross-talk configurable) and adds the
+   sensor's offset and its optional slow drift;
+3. a DAC holds the Fx value for 1/480 s (zero-order hold; analog output mode,
+   digital filter bypassed). Each DAC update also emits a short glitch (the
+   update strobe's digital feed-through, a standard DAC artefact), and the
+   analog output stage has a finite bandwidth (first-order).
+
+Everything analog runs on a fine clock (``fine_rate_hz``, a common multiple
+of 480 Hz and 1 kHz: 12 kHz by default), discretized exactly for inputs held
+over a fine tick. The model is advanced one 1 ms frame of 12 ticks per update
+(lifted, see ``filters.py``), and the 480 Hz ADC sample and DAC update happen
+on the tick where they fall. So the 480 Hz staircase, the glitch train and
+their aliasing when the DSP samples at 1 kHz come out of the model: no tone
+is added anywhere. Gauge noise comes from Drake's ``RandomSource`` (seeded by
+the scenario). The glitch's deterministic part makes the spectral line at
+480 Hz (its harmonics alias to multiples of 40 Hz at 1 kHz sampling); the
+held gauge noise makes the +-2 N seen at rest (Fig 4.4).
+
+The output is a voltage, force / ``output_scale_n_per_v`` (200 N/V), with the
+sensor's sign: pushing the wall gives a negative Fx; the DSP flips it.
+
+Delay and rise time of the whole chain on a 20 N force step (measured by
+``tests/test_sensor_chain.py::test_step_delay_and_rise_time``, plant step
+1 ms, noise off): ``force_measured`` reaches 50 % after 4.7 ms and rises
+10-90 % in 4.3 ms; ``force_filtered`` (after the 120 Hz digital filter)
+reaches 50 % after 6.8 ms and rises 10-90 % in 5.9 ms. The analog filter's
+group delay (2.7 ms), the 480 Hz hold (1.04 ms mean) and the 1 kHz sampling
+make these up.
+"""
+
+import dataclasses as dc
+
+import numpy as np
+from pydrake.common import RandomDistribution
+from pydrake.systems.framework import DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import RandomSource
+from scipy import signal
+
+from drake_contact.arm import CONTROL_PERIOD
+from drake_contact.errors import ScenarioError
+from drake_contact.filters import butterworth_analog, discretize_analog, first_order_analog
+
+
+@dc.dataclass
+class ForceSensorConfig:
+    """The FS6-120A and its analog output."""
+
+    # Analog anti-aliasing low-pass before the internal ADC: cut-off (Hz), order.
+    analog_cutoff_hz: float = 120.0
+    analog_order: int = 3
+    # Internal ADC/DAC loop rate (Hz): 480 Hz, a 2.08 ms loop (chapter 3).
+    adc_rate_hz: float = 480.0
+    # Internal ADC resolution (bits) and full scale +- per channel [Fx, Fy, Tz]
+    # (N, N, N m). The FS6-120A's ranges are not in the thesis; ours: 500 N, 20 N m.
+    adc_bits: int = 12
+    adc_full_scale: list[float] = dc.field(default_factory=lambda: [500.0, 500.0, 20.0])
+    # Calibration (decoupling) matrix on [Fx, Fy, Tz]: the planar rows and
+    # columns of the 6 x 6. Identity = perfect decoupling.
+    calibration_matrix: list[list[float]] = dc.field(
+        default_factory=lambda: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    # Standard deviation of the gauge noise after the analog filter, per
+    # channel (N, N, N m): sets the +-2 N raw noise at rest (Fig 4.4).
+    noise_std: list[float] = dc.field(default_factory=lambda: [0.75, 0.75, 0.01])
+    # Sensor offset on Fx (N), removed by the DSP's tare, and its drift (N/s).
+    offset_n: float = 3.0
+    offset_drift_n_per_s: float = 0.0
+    # DAC update glitch on the output (N-equivalent height, duration in s; the
+    # duration is rounded to whole fine ticks, at least one).
+    dac_glitch_n: float = 0.6
+    dac_glitch_duration_s: float = 1.0 / 12000.0
+    # Bandwidth of the analog output stage (Hz, first order).
+    output_bandwidth_hz: float = 3000.0
+    # Analog output scale (N/V).
+    output_scale_n_per_v: float = 200.0
+    # Fine clock of the analog simulation (Hz): a multiple of adc_rate_hz and 1 kHz.
+    fine_rate_hz: float = 12000.0
+
+    def validate(self, prefix="force_sensor"):
+        def bad(field, allowed):
+            raise ScenarioError(f"{prefix}.{field} = {getattr(self, field)} is out of range: "
+                                f"{allowed}")
+        if not (0 < self.analog_cutoff_hz < self.fine_rate_hz / 10):
+            bad("analog_cutoff_hz", f"must be in (0, fine_rate_hz / 10 = {self.fine_rate_hz / 10}) Hz")
+        if not (1 <= self.analog_order <= 8):
+            bad("analog_order", "must be in 1..8")
+        if not (self.adc_rate_hz > 0):
+            bad("adc_rate_hz", "must be > 0 Hz")
+        if not (2 <= self.adc_bits <= 24):
+            bad("adc_bits", "must be in 2..24")
+        if len(self.adc_full_scale) != 3 or not all(x > 0 for x in self.adc_full_scale):
+            bad("adc_full_scale", "must be 3 values > 0 (N, N, N m)")
+        cal = np.asarray(self.calibration_matrix, dtype=float)
+        if cal.shape != (3, 3) or not np.all(np.isfinite(cal)):
+            bad("calibration_matrix", "must be a finite 3 x 3 matrix")
+        if len(self.noise_std) != 3 or not all(x >= 0 for x in self.noise_std):
+            bad("noise_std", "must be 3 values >= 0")
+        if not (self.dac_glitch_duration_s > 0):
+            bad("dac_glitch_duration_s", "must be > 0 s")
+        if self.dac_glitch_duration_s >= 0.5 / self.adc_rate_hz:
+            bad("dac_glitch_duration_s", f"must be < half the ADC period, {0.5 / self.adc_rate_hz:.4g} s")
+        if not (0 < self.output_bandwidth_hz < self.fine_rate_hz / 2):
+            bad("output_bandwidth_hz", f"must be in (0, fine_rate_hz / 2) Hz")
+        if not (self.output_scale_n_per_v > 0):
+            bad("output_scale_n_per_v", "must be > 0 N/V")
+        for rate, name in ((self.adc_rate_hz, "adc_rate_hz"), (1000.0, "the 1 kHz DSP rate")):
+            ratio = self.fine_rate_hz / rate
+            if not (self.fine_rate_hz > 0) or abs(ratio - round(ratio)) > 1e-9 * ratio:
+                bad("fine_rate_hz", f"must be a whole multiple of {name} ({rate} Hz)")
+
+    @property
+    def fine_period(self):
+        return 1.0 / self.fine_rate_hz
+
+
+class ForceSensor(LeafSystem):
+    """The FS6-120A on the fine clock, advanced one 1 ms frame per update.
+
+    Each update at t_n simulates the fine ticks of [t_n, t_n + 1 ms): the
+    gauge filter (exact, by precomputed powers of its tick matrix), the 480 Hz
+    ADC sample and DAC hold on the tick where it falls, the glitch, and the
+    output stage. The wrench is the wall's force at t_n, which the plant holds
+    over the same interval (at a 1 ms plant step; finer plant steps are seen
+    at 1 kHz by the sensor).
+
+    Input ports:
+      wrench (3): [Fx, Fy, Tz] on the tip in world axes (N, N, N m).
+      tip_state (6): the tip's [x, y, phi, ...]; phi rotates into the sensor frame.
+      gauge_noise (3 * ticks): standard normal samples, one per tick and channel.
+    Output ports (state outputs, no Python when read):
+      voltage (1): the analog Fx output (V) at the end of the frame, i.e. at
+        the instant the DSP samples it.
+      voltage_frame (ticks): the output at each fine tick of the frame (V),
+        for analog filters downstream (see lifted_analog_filter_system).
+    """
+
+    def __init__(self, config: ForceSensorConfig):
+        super().__init__()
+        config.validate()
+        c = self._config = config
+        self._ticks = round(c.fine_rate_hz * CONTROL_PERIOD)
+        self._adc_every = round(c.fine_rate_hz / c.adc_rate_hz)
+        self._glitch_ticks = max(1, round(c.dac_glitch_duration_s * c.fine_rate_hz))
+        self._glitch_v = c.dac_glitch_n / c.output_scale_n_per_v
+        self._cal = np.asarray(c.calibration_matrix, dtype=float)
+        self._full = np.asarray(c.adc_full_scale, dtype=float)
+        self._lsb = 2.0 * self._full / 2 ** c.adc_bits
+        self._noise_gain = np.tile(noise_input_gain(c), round(c.fine_rate_hz * CONTROL_PERIOD))
+
+        # Gauge filter, 3 channels, on the fine clock; lifted to any tick j.
+        A, B, C, _ = discretize_analog(*butterworth_analog(c.analog_cutoff_hz, c.analog_order),
+                                       c.fine_period)
+        eye3 = np.eye(3)
+        A, B, C = np.kron(eye3, A), np.kron(eye3, B), np.kron(eye3, C)
+        N = self._ticks
+        powers = [np.linalg.matrix_power(A, k) for k in range(N + 1)]
+        self._gauge_C = C
+        self._gauge_P = powers
+        # x_j = P_j x_0 + sum_{m<j} A^(j-1-m) B (u + g * noise_m)
+        self._gauge_U = [sum((powers[j - 1 - m] @ B for m in range(j)), np.zeros_like(B))
+                         for j in range(N + 1)]
+        self._gauge_L = [np.hstack([powers[j - 1 - m] @ B if m < j else np.zeros_like(B)
+                                    for m in range(N)]) for j in range(N + 1)]
+        self._nx = A.shape[0]
+        # Output stage (scalar, first order) on the fine clock.
+        Ao, Bo, Co, _ = discretize_analog(*first_order_analog(c.output_bandwidth_hz), c.fine_period)
+        self._out_a = float(Ao[0, 0])
+        self._out_b = float(Bo[0, 0])
+        self._out_c = float(Co[0, 0])
+
+        self._wrench = self.DeclareVectorInputPort("wrench", 3)
+        self._tip = self.DeclareVectorInputPort("tip_state", 6)
+        self._noise = self.DeclareVectorInputPort("gauge_noise", 3 * N)
+        # The sensor has been on for a while: start at its offset, at rest.
+        v0 = c.offset_n / c.output_scale_n_per_v
+        self._voltage = self.DeclareDiscreteState([v0])
+        self._frame = self.DeclareDiscreteState(np.full(N, v0))
+        # [gauge filter state (nx), held volts, glitch ticks left, output-stage state]
+        self._internal = self.DeclareDiscreteState(
+            np.concatenate([np.zeros(self._nx), [v0, 0.0, v0 / self._out_c]]))
+        self.DeclarePeriodicDiscreteUpdateEvent(CONTROL_PERIOD, 0.0, self._update)
+        self.DeclareStateOutputPort("voltage", self._voltage)
+        self.DeclareStateOutputPort("voltage_frame", self._frame)
+
+    @property
+    def ticks_per_frame(self):
+        return self._ticks
+
+    def _adc(self, gauges, phi, t):
+        """Sample, rotate into the sensor frame, offset, quantize, calibrate."""
+        c = self._config
+        fx, fy, tz = gauges
+        cos, sin = np.cos(phi), np.sin(phi)
+        wrench = np.array([cos * fx + sin * fy, -sin * fx + cos * fy, tz])
+        wrench[0] += c.offset_n + c.offset_drift_n_per_s * t
+        counts = np.clip(np.floor(wrench / self._lsb + 0.5),
+                         -self._full / self._lsb, self._full / self._lsb - 1)
+        return float((self._cal @ (counts * self._lsb))[0]) / c.output_scale_n_per_v
+
+    def _update(self, context, state):
+        nx, N = self._nx, self._ticks
+        internal = context.get_discrete_state(self._internal).value()
+        x0 = internal[:nx]
+        held, glitch_left, xo = internal[nx], internal[nx + 1], internal[nx + 2]
+        u = self._wrench.Eval(context)
+        noise = self._noise.Eval(context) * self._noise_gain
+        t0 = context.get_time()
+        first_tick = round(t0 * self._config.fine_rate_hz)
+        phi = None
+        frame = np.empty(N)
+        for i in range(N):
+            if (first_tick + i) % self._adc_every == 0:
+                x_i = self._gauge_P[i] @ x0 + self._gauge_L[i] @ noise + self._gauge_U[i] @ u
+                if phi is None:
+                    phi = self._tip.Eval(context)[2]
+                held = self._adc(self._gauge_C @ x_i, phi, t0 + i * self._config.fine_period)
+                glitch_left = self._glitch_ticks
+            dac = held + (self._glitch_v if glitch_left > 0 else 0.0)
+            glitch_left = max(glitch_left - 1, 0)
+            frame[i] = self._out_c * xo
+            xo = self._out_a * xo + self._out_b * dac
+        x_end = self._gauge_P[N] @ x0 + self._gauge_L[N] @ noise + self._gauge_U[N] @ u
+        state.get_mutable_vector(self._voltage).SetAtIndex(0, self._out_c * xo)
+        state.get_mutable_vector(self._frame).SetFromVector(frame)
+        state.get_mutable_vector(self._internal).SetFromVector(
+            np.concatenate([x_end, [held, glitch_left, xo]]))
+
+
+def noise_input_gain(config: ForceSensorConfig):
+    """Standard deviation of the white gauge noise per fine tick such that
+    the analog filter's output has ``noise_std`` (from the energy of the
+    filter's impulse response at the fine rate)."""
+    A, B, C, D = discretize_analog(
+        *butterworth_analog(config.analog_cutoff_hz, config.analog_order), config.fine_period)
+    _, (h,) = signal.dimpulse((A, B, C, D, config.fine_period),
+                              n=int(20 * config.fine_rate_hz / config.analog_cutoff_hz))
+    energy = float(np.sum(np.asarray(h)[:, 0] ** 2))
+    return np.asarray(config.noise_std) / np.sqrt(energy)
+
+
+def AddForceSensor(builder: DiagramBuilder, config: ForceSensorConfig, *, name="force_sensor"):
+    """Adds the FS6-120A and its noise source; returns a dict of ports:
+    ``wrench`` (input, 3: world [Fx, Fy, Tz] on the tip), ``tip_state``
+    (input, 6), ``voltage`` (output, 1, V) and ``voltage_frame`` (output, V)."""
+    sensor = builder.AddNamedSystem(name, ForceSensor(config))
+    noise = builder.AddNamedSystem(
+        f"{name}_gauge_noise",
+        RandomSource(RandomDistribution.kGaussian, 3 * sensor.ticks_per_frame, CONTROL_PERIOD))
+    builder.Connect(noise.get_output_port(), sensor.GetInputPort("gauge_noise"))
+    return {
+        "wrench": sensor.GetInputPort("wrench"),
+        "tip_state": sensor.GetInputPort("tip_state"),
+        "voltage": sensor.GetOutputPort("voltage"),
+        "voltage_frame": sensor.GetOutputPort("voltage_frame"),
+    }
