@@ -66,7 +66,7 @@ class DspConfig:
     # Scale (N/V); the DSP flips the sign (pushing reads positive).
     scale_n_per_v: float = 200.0
     # Tare: average the reading over this window from t = 0 (s).
-    tare_window_s: float = 1.0
+    tare_window_s: float = 2.0
     # Force filter: digital Butterworth, 2nd order, cut-off (Hz) at 1 kHz.
     force_filter_cutoff_hz: float = 120.0
     anti_aliasing: AntiAliasingConfig = dc.field(default_factory=AntiAliasingConfig)

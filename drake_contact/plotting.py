@@ -38,3 +38,73 @@ def plot_main_signals(log: dict, scenario, out_dir) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def plot_sensor_figures(log: dict, scenario, out_dir) -> list[Path]:
+    """Fig 4.4 (a raw force sample) always; Figs 3.5 and 3.7 when the log has
+    the 190 Hz RC probe channel."""
+    import numpy as np
+    from scipy import signal as sps
+
+    from drake_contact.filters import rc_lowpass_analog
+    from drake_contact.spectra import welch_psd, windows
+
+    out_dir = Path(out_dir)
+    paths = []
+    t = log["t"]
+    rest, pressing = windows(log, scenario.dsp.tare_window_s)
+    # Fig 4.4: one second of the raw DSP force, at rest if there is rest.
+    pick = rest if rest.sum() >= 1000 else np.ones_like(rest)
+    start = t[pick][0]
+    sample = (t >= start) & (t < start + 1.0)
+    fig, ax = plt.subplots(figsize=(8, 3.5))
+    ax.plot(t[sample], log["force_measured"][sample], lw=0.8, label="raw (after tare)")
+    ax.plot(t[sample], log["force_filtered"][sample], lw=1.2, label="120 Hz filtered")
+    ax.plot(t[sample], log["contact_force_true"][sample], "k--", lw=1, label="true")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("force (N)")
+    ax.set_title("Fig 4.4: signal from the force sensor")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    paths.append(out_dir / "fig4_4_raw_force.png")
+    fig.savefig(paths[-1], dpi=110)
+    plt.close(fig)
+
+    if "force_measured_antialiased" in log and pressing.sum() >= 2048:
+        f, p_raw = welch_psd(log["force_measured"][pressing])
+        _, p_rc = welch_psd(log["force_measured_antialiased"][pressing])
+        fig, ax = plt.subplots(figsize=(8, 4))
+        ax.semilogy(f, p_raw, lw=0.9, label="unfiltered")
+        ax.semilogy(f, p_rc, lw=0.9, label="190 Hz RC filtered")
+        ax.axvline(120, color="grey", ls=":", lw=1)
+        ax.axvline(480, color="grey", ls=":", lw=1)
+        ax.set_xlim(0, 500)
+        ax.set_xlabel("frequency (Hz)")
+        ax.set_ylabel("PSD (N$^2$/Hz)")
+        ax.set_title("Fig 3.5: PSD of the raw force, unfiltered and 190 Hz filtered")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        paths.append(out_dir / "fig3_5_psd.png")
+        fig.savefig(paths[-1], dpi=110)
+        plt.close(fig)
+
+        aa = scenario.dsp.anti_aliasing
+        num, den = rc_lowpass_analog(aa.R1, aa.R2, aa.C1, aa.C2)
+        freqs = np.logspace(0, 4, 400)
+        _, h = sps.freqs(num, den, worN=2 * np.pi * freqs)
+        fig, ax = plt.subplots(figsize=(7, 4))
+        ax.semilogx(freqs, 20 * np.log10(np.abs(h)))
+        fn = np.sqrt(den[2]) / (2 * np.pi)
+        ax.axvline(fn, color="grey", ls=":", lw=1, label=f"natural frequency {fn:.1f} Hz")
+        ax.set_xlabel("frequency (Hz)")
+        ax.set_ylabel("gain (dB)")
+        ax.set_title("Fig 3.7: gain of the 2nd-order RC low-pass (190 Hz)")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        paths.append(out_dir / "fig3_7_rc_gain.png")
+        fig.savefig(paths[-1], dpi=110)
+        plt.close(fig)
+    return paths

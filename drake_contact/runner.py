@@ -29,6 +29,7 @@ from drake_contact.arm import CONTROL_PERIOD
 from drake_contact.diagram import MakeContactDiagram
 from drake_contact.errors import SimulationDiverged
 from drake_contact.scenario import Scenario, dump_scenario
+from drake_contact.spectra import sensor_metrics
 
 #: log.npz key -> (exported output port, columns taken from it). Keys whose
 #: port the scenario's diagram does not export are left out of the log.
@@ -94,9 +95,11 @@ def simulate(scenario: Scenario, *, progress=None):
     start = time.perf_counter()
     try:
         simulator.Initialize()
-        t = 0.0
-        while t < duration - 1e-12:
-            t = min(t + CHUNK_S, duration)
+        chunks = int(np.ceil(duration / CHUNK_S - 1e-9))
+        for k in range(1, chunks + 1):
+            # Whole multiples of the chunk (no accumulated rounding), ending
+            # exactly at the duration.
+            t = duration if k == chunks else k * CHUNK_S
             simulator.AdvanceTo(t)
             _check_divergence(loggers, context, force_limit)
             if progress is not None:
@@ -188,6 +191,7 @@ def compute_metrics(scenario: Scenario, log: dict, wall_s: float) -> dict:
         metrics["steady_penetration_m"] = x_mean
         metrics["steady_stiffness_ratio_n_per_m"] = f_mean / x_mean
         metrics["steady_stiffness_error"] = f_mean / x_mean / K_true - 1.0
+    metrics.update(sensor_metrics(log, scenario.dsp.tare_window_s))
     return metrics
 
 
@@ -205,8 +209,9 @@ def run(scenario: Scenario, out_dir, *, progress=None, figures=True) -> RunResul
     np.savez(out / "log.npz", **log)
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2, sort_keys=True) + "\n")
     if figures and len(log["t"]) > 1:
-        from drake_contact.plotting import plot_main_signals
+        from drake_contact.plotting import plot_main_signals, plot_sensor_figures
         plot_main_signals(log, scenario, out)
+        plot_sensor_figures(log, scenario, out)
     return RunResult(log=log, metrics=metrics, status=status, message=message)
 
 

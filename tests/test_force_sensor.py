@@ -1,0 +1,144 @@
+"""The FS6-120A system: the lifted (1 ms frame) model against a plain
+tick-by-tick reference, quantization, calibration, hold and noise level."""
+
+import dataclasses as dc
+
+import numpy as np
+import pytest
+
+from drake_contact.errors import ScenarioError
+from drake_contact.filters import butterworth_analog, discretize_analog
+from drake_contact.force_sensor import ForceSensor, ForceSensorConfig, noise_input_gain
+
+TICKS = 12
+
+
+def make_sensor(**fields):
+    config = dc.replace(ForceSensorConfig(), **fields)
+    sensor = ForceSensor(config)
+    return config, sensor, sensor.CreateDefaultContext()
+
+
+def step(sensor, context, n, wrench, phi=0.0, noise=None):
+    sensor.GetInputPort("wrench").FixValue(context, wrench)
+    sensor.GetInputPort("tip_state").FixValue(context, [0.45, 0, phi, 0, 0, 0])
+    sensor.GetInputPort("gauge_noise").FixValue(
+        context, np.zeros(3 * TICKS) if noise is None else noise)
+    new = sensor.EvalUniquePeriodicDiscreteUpdate(context)
+    for group in range(new.num_groups()):
+        context.SetDiscreteState(group, new.get_vector(group).value().copy())
+    context.SetTime((n + 1) * 1e-3)
+    return (sensor.GetOutputPort("voltage").Eval(context)[0],
+            sensor.GetOutputPort("voltage_frame").Eval(context).copy())
+
+
+class Reference:
+    """The same model written the plain way: every fine tick in turn."""
+
+    def __init__(self, c: ForceSensorConfig):
+        self.c = c
+        A, B, C, _ = discretize_analog(*butterworth_analog(c.analog_cutoff_hz, c.analog_order),
+                                       c.fine_period)
+        self.A, self.B, self.C = A, B, C
+        self.x = [np.zeros(A.shape[0]) for _ in range(3)]
+        Ao, Bo, Co, _ = discretize_analog(*butterworth_analog(c.output_bandwidth_hz, 2),
+                                          c.fine_period)
+        self.Ao, self.Bo, self.Co = Ao, Bo[:, 0], Co[0]
+        v0 = c.offset_n / c.output_scale_n_per_v
+        self.xo = np.linalg.solve(np.eye(2) - Ao, self.Bo * v0)
+        self.held, self.glitch_left, self.tick = v0, 0, 0
+        self.gain = noise_input_gain(c)
+
+    def frame(self, wrench, phi, noise):
+        c = self.c
+        out = []
+        for i in range(TICKS):
+            if self.tick % round(c.fine_rate_hz / c.adc_rate_hz) == 0:
+                g = np.array([self.C[0] @ x for x in self.x])
+                w = np.array([np.cos(phi) * g[0] + np.sin(phi) * g[1],
+                              -np.sin(phi) * g[0] + np.cos(phi) * g[1], g[2]])
+                w[0] += c.offset_n
+                lsb = 2 * np.array(c.adc_full_scale) / 2 ** c.adc_bits
+                q = np.round(w / lsb) * lsb
+                self.held = (np.array(c.calibration_matrix) @ q)[0] / c.output_scale_n_per_v
+                self.glitch_left = max(1, round(c.dac_glitch_duration_s * c.fine_rate_hz))
+            dac = self.held + (c.dac_glitch_n / c.output_scale_n_per_v if self.glitch_left else 0)
+            self.glitch_left = max(self.glitch_left - 1, 0)
+            out.append(self.Co @ self.xo)
+            self.xo = self.Ao @ self.xo + self.Bo * dac
+            for ch in range(3):
+                u = wrench[ch] + self.gain[ch] * noise[3 * i + ch]
+                self.x[ch] = self.A @ self.x[ch] + self.B[:, 0] * u
+            self.tick += 1
+        return self.Co @ self.xo, np.array(out)
+
+
+def test_lifted_sensor_equals_the_tick_by_tick_reference():
+    config, sensor, context = make_sensor(
+        calibration_matrix=[[1.0, 0.02, 0.5], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    reference = Reference(config)
+    rng = np.random.default_rng(3)
+    for n in range(60):
+        wrench = [-20.0 + 5 * np.sin(0.1 * n), 3.0 * np.cos(0.2 * n), 0.4]
+        phi = 0.01 * np.sin(0.05 * n)
+        noise = rng.normal(size=3 * TICKS)
+        v, frame = step(sensor, context, n, wrench, phi, noise)
+        v_ref, frame_ref = reference.frame(wrench, phi, noise)
+        np.testing.assert_allclose(frame, frame_ref, atol=1e-9)
+        assert v == pytest.approx(v_ref, abs=1e-9)
+
+
+def test_static_force_reads_through_sign_offset_and_12_bit_quantization():
+    config, sensor, context = make_sensor(dac_glitch_n=0.0, offset_n=3.0)
+    for n in range(100):
+        v, _ = step(sensor, context, n, [-20.0, 0.0, 0.0])
+    lsb = 2 * 500.0 / 4096
+    expected = np.round((-20.0 + 3.0) / lsb) * lsb / 200.0
+    assert v == pytest.approx(expected, abs=1e-7)
+    assert abs(v * 200 - (-17.0)) <= lsb / 2 + 1e-6
+
+
+def test_calibration_cross_talk_leaks_fy_into_fx():
+    config, sensor, context = make_sensor(dac_glitch_n=0.0, offset_n=0.0,
+                                          calibration_matrix=[[1, 0.1, 0], [0, 1, 0], [0, 0, 1]])
+    for n in range(100):
+        v, _ = step(sensor, context, n, [0.0, 50.0, 0.0])
+    assert v * 200 == pytest.approx(5.0, abs=0.25)
+
+
+def test_dac_holds_each_sample_for_25_fine_ticks():
+    # A ramp in force: the output (glitch and reconstruction filter off-ish)
+    # changes in steps 1/480 s apart.
+    config, sensor, context = make_sensor(dac_glitch_n=0.0, offset_n=0.0,
+                                          output_bandwidth_hz=5000.0, adc_bits=24)
+    frames = []
+    for n in range(30):
+        _, frame = step(sensor, context, n, [-(5.0 * n), 0.0, 0.0])
+        frames.append(frame)
+    levels = np.concatenate(frames)[120:]
+    jumps = np.flatnonzero(np.abs(np.diff(levels)) > 1e-3)
+    # One big jump per ADC update (the 5 kHz stage settles within two ticks).
+    starts = jumps[np.insert(np.diff(jumps) > 3, 0, True)]
+    assert np.all(np.diff(starts) == 25)
+
+
+def test_gauge_noise_has_the_configured_level():
+    config, sensor, context = make_sensor(dac_glitch_n=0.0, offset_n=0.0, adc_bits=24,
+                                          noise_std=[0.75, 0.0, 0.0])
+    rng = np.random.default_rng(1)
+    volts = [step(sensor, context, n, [0.0, 0.0, 0.0], noise=rng.normal(size=3 * TICKS))[0]
+             for n in range(6000)]
+    # The held (480 Hz) noise keeps the gauge noise's variance.
+    assert np.std(np.array(volts[200:]) * 200) == pytest.approx(0.75, rel=0.08)
+
+
+@pytest.mark.parametrize("field,value,words", [
+    ("fine_rate_hz", 10000.0, "force_sensor.fine_rate_hz = 10000.0 is out of range: "
+                              "must be a whole multiple of adc_rate_hz"),
+    ("adc_bits", 1, "force_sensor.adc_bits = 1 is out of range"),
+    ("calibration_matrix", [[1, 0], [0, 1]], "must be a finite 3 x 3 matrix"),
+    ("noise_std", [-1.0, 0.0, 0.0], "force_sensor.noise_std"),
+])
+def test_bad_sensor_settings_name_the_field(field, value, words):
+    with pytest.raises(ScenarioError, match=words.replace("(", r"\(").replace(")", r"\)")):
+        make_sensor(**{field: value})
