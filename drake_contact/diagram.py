@@ -77,10 +77,8 @@ def MakeContactDiagram(scenario: Scenario, *, meshcat=None):
     builder = DiagramBuilder()
     plant, scene_graph = AddArmPlant(builder, scenario.arm)
     state_port = plant.get_state_output_port()
-    check_friction_stability(
-        scenario.joint_friction,
-        np.diag(plant.CalcMassMatrix(plant.CreateDefaultContext())),
-        scenario.arm.time_step)
+    joint_inertias = np.diag(plant.CalcMassMatrix(plant.CreateDefaultContext()))
+    check_friction_stability(scenario.joint_friction, joint_inertias, scenario.arm.time_step)
 
     tip = builder.AddNamedSystem("tip_kinematics", TipKinematics(plant))
     builder.Connect(state_port, tip.GetInputPort("plant_state"))
@@ -89,7 +87,9 @@ def MakeContactDiagram(scenario: Scenario, *, meshcat=None):
     builder.Connect(tip.GetOutputPort("tip_state"), wall.GetInputPort("tip_state"))
     builder.Connect(wall.GetOutputPort("force_on_tip"), tip.GetInputPort("force_on_tip"))
 
-    friction_in, friction_out = AddJointFriction(builder, scenario.joint_friction)
+    friction_in, friction_out = AddJointFriction(
+        builder, scenario.joint_friction, mass_matrix_diagonal=joint_inertias,
+        time_step=scenario.arm.time_step)
     builder.Connect(state_port, friction_in)
     external = builder.AddNamedSystem("external_torque", Adder(2, 3))
     builder.Connect(tip.GetOutputPort("generalized_force"), external.get_input_port(0))

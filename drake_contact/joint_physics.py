@@ -1,9 +1,20 @@
-"""Joint-side physics of the arm, built from Drake's C++ systems.
+"""Joint-side physics of the arm.
 
-* Coulomb joint friction: tau_f = -sat(qdot * F_c / v_s, -F_c, F_c), a
-  Coulomb law regularized linearly inside |qdot| < v_s (a MatrixGain and a
-  Saturation: no Python callback). The thesis (chapter 4) models dry friction
-  F_c sgn(qdot) and neglects viscous friction.
+* Coulomb joint friction (the thesis, chapter 4: dry friction F_c sgn(qdot),
+  viscous friction neglected), two models:
+
+  - ``regularized``: tau_f = -sat(qdot F_c / v_s, -F_c, F_c), linear inside
+    |qdot| < v_s (a MatrixGain and a Saturation: no Python). It cannot hold a
+    static load: under any torque below F_c the joint creeps at
+    v_s * torque / F_c until the torque is gone.
+  - ``lugre`` (default): the LuGre bristle model (Canudas de Wit et al., 1995)
+    without Stribeck effect, dz/dt = qdot - sigma0 |qdot| z / F_c,
+    tau_f = -(sigma0 z + sigma1 dz/dt). It sticks: a load below F_c deflects the
+    bristles by load / sigma0 (tens of micro-radians) and stops there, which is
+    what leaves the force error of the thesis's hybrid-only runs (Fig 6.10).
+    The bristle stiffness is set per joint from its inertia for a bristle
+    frequency (50 Hz) the 1 ms plant step resolves, critically damped; z is
+    advanced exactly for the velocity held over each step.
 * Torque saturation at the controller's limits (Appendix E: 16, 2.5, 0.6 N m).
 * Encoders: Drake's ``RotaryEncoders`` quantize the joint angles to the
   counts per revolution of chapter 3 (joint 1 614,400, joint 2 409,600,
@@ -18,7 +29,7 @@ F_c / v_s * h / M_ii < 2 (h the plant step, M_ii the joint's inertia).
 import dataclasses as dc
 
 import numpy as np
-from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import MatrixGain, Saturation
 from pydrake.systems.sensors import RotaryEncoders
 
@@ -31,20 +42,38 @@ THESIS_TORQUE_LIMITS = [16.0, 2.5, 0.6]
 THESIS_ENCODER_COUNTS = [614400, 409600, 2000]
 
 
+FRICTION_MODELS = ("lugre", "regularized")
+
+
 @dc.dataclass
 class JointFrictionConfig:
     """Coulomb friction at the three joints (the plant's truth)."""
 
     # Include joint friction in the simulated plant.
     enabled: bool = True
+    # lugre (sticks) or regularized (creeps).
+    model: str = "lugre"
     # Coulomb level per joint (N m). Joints 1-2: the motors' maximum friction
     # torque (Appendix B: 4.41 and 0.98 N m). Joint 3: not given by the thesis;
     # 0.05 N m (2.5 % of its 2 N m peak) is our assumption.
     levels: list[float] = dc.field(default_factory=lambda: [4.41, 0.98, 0.05])
-    # Regularization velocity (rad/s): linear inside |qdot| < this.
+    # Regularization velocity (rad/s) of the regularized model.
     regularization_velocity: float = 0.02
+    # LuGre bristles: natural frequency (Hz) with the joint's inertia, and
+    # damping ratio.
+    bristle_frequency_hz: float = 50.0
+    bristle_damping_ratio: float = 1.0
 
     def validate(self, prefix="joint_friction"):
+        if self.model not in FRICTION_MODELS:
+            raise ScenarioError(f"{prefix}.model = '{self.model}' is unknown: choose one of "
+                                f"{', '.join(FRICTION_MODELS)}")
+        if not (0 < self.bristle_frequency_hz < 200):
+            raise ScenarioError(f"{prefix}.bristle_frequency_hz = {self.bristle_frequency_hz} "
+                                "is out of range: must be in (0, 200) Hz")
+        if not (0 < self.bristle_damping_ratio <= 2):
+            raise ScenarioError(f"{prefix}.bristle_damping_ratio = {self.bristle_damping_ratio} "
+                                "is out of range: must be in (0, 2]")
         if len(self.levels) != 3 or any(not np.isfinite(x) or x < 0 for x in self.levels):
             raise ScenarioError(
                 f"{prefix}.levels = {self.levels} is out of range: must be 3 values >= 0 N m")
@@ -70,10 +99,17 @@ class EncoderConfig:
 
 
 def check_friction_stability(config: JointFrictionConfig, mass_matrix_diagonal, time_step):
-    """Raises ScenarioError when the regularized friction would be unstable
-    at this plant step (explicit damping F_c/v_s with h F_c/(v_s M_ii) >= 1,
-    half the theoretical limit of 2 for margin)."""
+    """Raises ScenarioError when the friction would be unstable at this plant
+    step. Regularized: explicit damping F_c/v_s with h F_c/(v_s M_ii) >= 1
+    (half the theoretical limit of 2, for margin). LuGre: the bristle
+    frequency must be resolved, 2 pi f_b h < 1."""
     if not config.enabled:
+        return
+    if config.model == "lugre":
+        if 2 * np.pi * config.bristle_frequency_hz * time_step >= 1.0:
+            raise ScenarioError(
+                f"joint_friction.bristle_frequency_hz = {config.bristle_frequency_hz} is out of "
+                f"range at arm.time_step = {time_step}: must be < {1 / (2 * np.pi * time_step):.4g} Hz")
         return
     for i, (level, m_ii) in enumerate(zip(config.levels, mass_matrix_diagonal)):
         ratio = time_step * level / (config.regularization_velocity * m_ii)
@@ -85,12 +121,67 @@ def check_friction_stability(config: JointFrictionConfig, mass_matrix_diagonal, 
                 f"{time_step}: joint {i + 1} needs > {v_min:.3g} rad/s to stay stable")
 
 
-def AddJointFriction(builder: DiagramBuilder, config: JointFrictionConfig, *, name="joint_friction"):
+class LuGreFriction(LeafSystem):
+    """LuGre joint friction (no Stribeck, no viscous term), stepped at the
+    plant's step.
+
+    Input port: plant_state (6, [q; v]). Output port: torque (3, N m).
+    State (discrete, 3): bristle deflections z (rad).
+    """
+
+    def __init__(self, config: JointFrictionConfig, mass_matrix_diagonal, time_step):
+        super().__init__()
+        self._h = float(time_step)
+        self._levels = np.asarray(config.levels if config.enabled else [0.0] * 3, dtype=float)
+        w = 2 * np.pi * config.bristle_frequency_hz
+        inertia = np.asarray(mass_matrix_diagonal, dtype=float)
+        self._sigma0 = inertia * w**2
+        self._sigma1 = 2 * config.bristle_damping_ratio * np.sqrt(self._sigma0 * inertia)
+        self._state = self.DeclareVectorInputPort("plant_state", 6)
+        self.DeclareDiscreteState(3)
+        self.DeclarePeriodicDiscreteUpdateEvent(self._h, 0.0, self._update)
+        self.DeclareVectorOutputPort(
+            "torque", 3, self._calc_torque,
+            prerequisites_of_calc={self._state.ticket(), self.xd_ticket()})
+
+    def _rates(self, z, qdot):
+        """dz/dt; a joint with no friction keeps z = 0."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            decay = np.where(self._levels > 0, self._sigma0 * np.abs(qdot) / self._levels, 0.0)
+        return np.where(self._levels > 0, qdot - decay * z, 0.0)
+
+    def _calc_torque(self, context, output):
+        qdot = self._state.Eval(context)[3:]
+        z = context.get_discrete_state_vector().value()
+        output.SetFromVector(-(self._sigma0 * z + self._sigma1 * self._rates(z, qdot)))
+
+    def _update(self, context, discrete_state):
+        qdot = self._state.Eval(context)[3:]
+        z = context.get_discrete_state_vector().value()
+        new = z.copy()
+        for i in range(3):
+            if self._levels[i] <= 0:
+                new[i] = 0.0
+            elif qdot[i] != 0.0:
+                # Exact for qdot held over the step: z relaxes to its sliding value.
+                z_slide = self._levels[i] * np.sign(qdot[i]) / self._sigma0[i]
+                rate = self._sigma0[i] * abs(qdot[i]) / self._levels[i]
+                new[i] = z_slide + (z[i] - z_slide) * np.exp(-rate * self._h)
+        discrete_state.set_value(new)
+
+
+def AddJointFriction(builder: DiagramBuilder, config: JointFrictionConfig, *,
+                     mass_matrix_diagonal=None, time_step=None, name="joint_friction"):
     """Adds the friction law; returns (input, output) ports.
 
     The input is the plant state [q; v] (6); the output the friction torque
-    (3, N m) to add to the plant's applied generalized force.
+    (3, N m) to add to the plant's applied generalized force. The LuGre model
+    needs the joints' inertias (M's diagonal at q0) and the plant step.
     """
+    if config.model == "lugre":
+        friction = builder.AddNamedSystem(
+            name, LuGreFriction(config, mass_matrix_diagonal, time_step))
+        return friction.GetInputPort("plant_state"), friction.GetOutputPort("torque")
     levels = np.asarray(config.levels if config.enabled else [0.0] * 3, dtype=float)
     gain = np.zeros((3, 6))
     gain[:, 3:] = -np.diag(levels / config.regularization_velocity)

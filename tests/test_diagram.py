@@ -29,8 +29,9 @@ def test_push_constant_settles_at_force_over_penetration_equal_to_stiffness(tmp_
     m = result.metrics
     assert result.status == "completed"
     assert abs(m["steady_stiffness_ratio_n_per_m"] / stiffness - 1) < 0.02
-    # A real push, not a graze: most of the 20 N arrives through friction.
-    assert 15.0 < m["steady_force_n"] < 21.0
+    # A real push, not a graze: the joints' stiction (LuGre) holds the arm
+    # short of the 20 N the harness commands, by up to about 6 N.
+    assert 12.0 < m["steady_force_n"] < 21.0
     # The tip is at rest in the settle window.
     settle = result.log["t"] > scenario.simulation.duration - scenario.simulation.settle_window
     assert np.max(np.abs(result.log["tip_velocity_true"][settle, 0])) < 1e-3
@@ -98,6 +99,7 @@ def test_non_finite_force_stops_with_time(tmp_path):
 
 
 def test_unstable_friction_setting_is_refused_before_simulating():
-    scenario = load_scenario("push_constant", ["joint_friction.regularization_velocity=0.002"])
+    scenario = load_scenario("push_constant", ["joint_friction.model=regularized",
+                                               "joint_friction.regularization_velocity=0.002"])
     with pytest.raises(ScenarioError, match="joint 1 needs"):
         MakeContactDiagram(scenario)

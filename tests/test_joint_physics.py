@@ -11,6 +11,7 @@ from drake_contact.joint_physics import (
 
 
 def friction_diagram(config):
+    assert config.model == "regularized"
     builder = DiagramBuilder()
     inp, out = AddJointFriction(builder, config)
     builder.ExportInput(inp, "state")
@@ -20,7 +21,8 @@ def friction_diagram(config):
 
 
 def test_friction_is_coulomb_outside_the_band_and_linear_inside():
-    config = JointFrictionConfig(levels=[4.41, 0.98, 0.05], regularization_velocity=0.02)
+    config = JointFrictionConfig(model="regularized", levels=[4.41, 0.98, 0.05],
+                                 regularization_velocity=0.02)
     diagram, context = friction_diagram(config)
     for v in ([1.0, -0.5, 0.3], [0.01, -0.005, 0.0], [-0.02, 0.02, -1e-3]):
         diagram.get_input_port().FixValue(context, np.concatenate([[0.3, 1.0, -0.7], v]))
@@ -29,7 +31,7 @@ def test_friction_is_coulomb_outside_the_band_and_linear_inside():
 
 
 def test_friction_off_gives_zero_torque():
-    diagram, context = friction_diagram(JointFrictionConfig(enabled=False))
+    diagram, context = friction_diagram(JointFrictionConfig(model="regularized", enabled=False))
     diagram.get_input_port().FixValue(context, [0, 0, 0, 1.0, -1.0, 2.0])
     np.testing.assert_array_equal(diagram.get_output_port().Eval(context), 0.0)
 
@@ -37,7 +39,7 @@ def test_friction_off_gives_zero_torque():
 def test_unstable_regularization_is_refused():
     # The thesis's compensation band, 0.002 rad/s, is too sharp for the
     # plant's explicit friction at a 1 ms step, and fine at 0.1 ms.
-    config = JointFrictionConfig(regularization_velocity=0.002)
+    config = JointFrictionConfig(model="regularized", regularization_velocity=0.002)
     with pytest.raises(ScenarioError, match=r"joint_friction.regularization_velocity = 0.002 "
                        r"is out of range at arm.time_step = 0.001: joint 1 needs > 0.00428"):
         check_friction_stability(config, [1.03, 0.117, 0.00287], 1e-3)
@@ -64,3 +66,52 @@ def test_encoders_quantize_to_counts_per_revolution():
     assert np.all(np.abs(measured - q) < steps)
     np.testing.assert_allclose(measured / steps, np.round(measured / steps), atol=1e-6)
     assert abs(measured[2] - q[2]) > 1e-4  # joint 3 is visibly coarse
+
+
+def lugre_diagram(levels=(4.41, 0.98, 0.05)):
+    from drake_contact.joint_physics import LuGreFriction
+    config = JointFrictionConfig(levels=list(levels))
+    friction = LuGreFriction(config, [1.03, 0.117, 0.00287], 1e-3)
+    return friction, friction.CreateDefaultContext()
+
+
+def step_joint(friction, context, inertia, load, steps, joint=1):
+    """One joint with inertia, a constant load torque and the LuGre
+    friction, stepped like the plant (symplectic Euler, 1 ms)."""
+    q = qd = 0.0
+    for n in range(steps):
+        state = np.zeros(6)
+        state[joint], state[3 + joint] = q, qd
+        friction.GetInputPort("plant_state").FixValue(context, state)
+        tau = friction.GetOutputPort("torque").Eval(context)[joint]
+        context.SetDiscreteState(friction.EvalUniquePeriodicDiscreteUpdate(context)
+                                 .get_vector().value().copy())
+        qd += 1e-3 * (load + tau) / inertia
+        q += 1e-3 * qd
+    return q, qd, tau
+
+
+def test_lugre_holds_a_load_below_the_coulomb_level_without_creeping():
+    friction, context = lugre_diagram()
+    q1, _, _ = step_joint(friction, context, 0.117, 0.8, 1000)
+    friction, context = lugre_diagram()
+    q3, qd, tau = step_joint(friction, context, 0.117, 0.8, 3000)
+    assert tau == pytest.approx(-0.8, abs=1e-6)
+    assert abs(qd) < 1e-9
+    # Stuck: a fraction of a milliradian of pre-sliding, then no creep at all
+    # (the regularized model would creep at 0.02 * 0.8 / 0.98 = 16 mrad/s).
+    assert abs(q3) < 1e-3
+    assert abs(q3 - q1) < 1e-9
+
+
+def test_lugre_slides_at_the_coulomb_level_above_it():
+    friction, context = lugre_diagram()
+    q, qd, tau = step_joint(friction, context, 0.117, 1.5, 2000)
+    assert tau == pytest.approx(-0.98, rel=1e-3)
+    # Net 0.52 N m on 0.117 kg m^2 for 2 s.
+    assert qd == pytest.approx(0.52 / 0.117 * 2.0, rel=0.02)
+
+
+def test_lugre_without_friction_gives_zero():
+    friction, context = lugre_diagram(levels=(0.0, 0.0, 0.0))
+    assert step_joint(friction, context, 0.117, 1.0, 100)[2] == 0.0
