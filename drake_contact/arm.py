@@ -18,6 +18,13 @@ from drake_contact.resources import arm_urdf_path
 #: Controller sample period (s): every controller runs at 1 kHz.
 CONTROL_PERIOD = 1e-3
 
+#: Controllers sample this long before each 1 ms plant step, so the torque
+#: they compute from the measurements at t_n acts from t_n on: the DSP's
+#: computation time is neglected (in Drake a discrete update at t_n is only
+#: seen by others after t_n, which would add a whole sample of delay).
+CONTROL_SAMPLE_LEAD = 1e-6
+CONTROL_SAMPLE_OFFSET = CONTROL_PERIOD - CONTROL_SAMPLE_LEAD
+
 #: Link lengths a_i (m), masses m_i (kg), COM offsets S_ix (m), Izz (kg m^2).
 LINK_LENGTHS = (0.2207, 0.1603, 0.1508)
 LINK_MASSES = (12.88, 5.95, 0.44)
@@ -40,6 +47,9 @@ class ArmConfig:
     time_step: float = 1e-3
     # Initial joint angles q0 (rad).
     initial_positions: list[float] = dc.field(default_factory=lambda: list(THESIS_Q0))
+    # Torque each motor delivers per N m commanded (the drives' true torque
+    # constants against the DAC scaling the controller assumes), joints 1-3.
+    motor_torque_scale: list[float] = dc.field(default_factory=lambda: [1.0, 1.0, 1.0])
 
     def validate(self, prefix="arm"):
         h = self.time_step
@@ -52,6 +62,11 @@ class ArmConfig:
             raise ScenarioError(
                 f"{prefix}.time_step = {h} does not divide the 1 ms control period: "
                 "choose 0.001 / N s for a whole N (e.g. 0.001, 0.0005, 0.0001)")
+        scale = self.motor_torque_scale
+        if len(scale) != 3 or not all(np.isfinite(x) and 0.5 <= x <= 2.0 for x in scale):
+            raise ScenarioError(
+                f"{prefix}.motor_torque_scale = {scale} is out of range: must be 3 values in "
+                "[0.5, 2]")
         q0 = self.initial_positions
         if len(q0) != 3 or not np.all(np.isfinite(q0)):
             raise ScenarioError(

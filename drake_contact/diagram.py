@@ -1,6 +1,6 @@
 """Builds the simulation diagram of one scenario.
 
-    controller --joint_torque_commanded--> torque_saturation --> plant.actuation
+    controller --joint_torque_commanded--> torque_saturation --> motors --> plant.actuation
     plant.state --> tip_kinematics --tip_state--> wall --force_on_tip--+
     plant.state --> joint_friction ------------------------------------+--> adder
     adder (J^T F_wall + tau_friction) --> plant.applied_generalized_force
@@ -13,14 +13,16 @@ Every signal a run logs is an exported output port of the diagram, named
 
 import numpy as np
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import Adder
+from pydrake.systems.primitives import Adder, ConstantVectorSource, MatrixGain
 
 from drake_contact.arm import CONTROL_PERIOD, AddArmPlant, MakeArmModel
 from drake_contact.compliant_wall import CompliantWall
 from drake_contact.dsp import AddDspForceInput
 from drake_contact.errors import ScenarioError
 from drake_contact.estimator import AddKinematicEstimator
+from drake_contact.force_reference import ForceReference
 from drake_contact.force_sensor import AddForceSensor
+from drake_contact.hybrid_controller import HybridController
 from drake_contact.joint_physics import (
     AddEncoders, AddJointFriction, AddTorqueSaturation, check_friction_stability)
 from drake_contact.push_controller import ConstantForcePushController
@@ -34,9 +36,9 @@ EXPORTED_OUTPUTS = {
     "contact_force_true": (1, "true normal force on the tip (N)"),
     "penetration_true": (1, "true surface displacement xe (m)"),
     "true_impedance": (3, "true [M_e, B_e, K_e] (kg, N s/m, N/m)"),
-    "joint_positions_measured": (3, "encoder-quantized q (rad)"),
+    "joint_positions_measured": (3, "encoder-quantized q, zeroed at q0 (rad)"),
     "joint_torque_commanded": (3, "controller's torque before saturation (N m)"),
-    "joint_torque_applied": (3, "torque after saturation, into the plant (N m)"),
+    "joint_torque_applied": (3, "motor torque into the plant: saturated, times the motor scale (N m)"),
     "joint_friction_torque": (3, "Coulomb friction torque on the joints (N m)"),
     "force_measured": (1, "DSP force after ADC, scale, sign and tare (N)"),
     "force_filtered": (1, "force_measured through the 120 Hz Butterworth (N)"),
@@ -50,19 +52,47 @@ EXPORTED_OUTPUTS = {
 #: Exported only when the scenario has them: name -> (size, meaning).
 OPTIONAL_OUTPUTS = {
     "force_measured_antialiased": (1, "second DSP channel through the 190 Hz RC filter (N)"),
+    "mode": (1, "controller mode: 0 approach, 1 contact"),
+    "force_desired": (1, "desired normal force f_d (N)"),
+    "contact_info": (4, "[first switch time (s) or -1, x, y, phi at the switch]"),
 }
 
 
-def _add_push_controller(builder, scenario, plant):
+def _add_push_controller(builder, scenario, plant, measured):
     controller = builder.AddNamedSystem(
         "controller", ConstantForcePushController(plant, scenario.controller.push))
     builder.Connect(plant.get_state_output_port(), controller.GetInputPort("plant_state"))
-    return controller.GetOutputPort("joint_torque_commanded")
+    return {"joint_torque_commanded": controller.GetOutputPort("joint_torque_commanded")}
 
 
-#: controller.name -> adder(builder, scenario, plant) returning its torque port.
+def _add_hybrid_controller(builder, scenario, plant, measured):
+    config = scenario.controller.hybrid
+    controller = builder.AddNamedSystem("controller", HybridController(config))
+    reference = builder.AddNamedSystem("force_reference", ForceReference(scenario.force_reference))
+    for name in ("tip_pose", "tip_velocity", "joint_positions", "joint_velocities"):
+        builder.Connect(measured[name], controller.GetInputPort(name))
+    builder.Connect(measured["force_filtered"], controller.GetInputPort("force"))
+    builder.Connect(reference.GetOutputPort("force_desired"),
+                    controller.GetInputPort("force_desired"))
+    builder.Connect(controller.GetOutputPort("contact_info"),
+                    reference.GetInputPort("contact_info"))
+    # The decoupled law's k_e: the scenario's constant until an identifier feeds it.
+    stiffness = builder.AddNamedSystem(
+        "stiffness_estimate", ConstantVectorSource([config.stiffness_estimate]))
+    builder.Connect(stiffness.get_output_port(), controller.GetInputPort("stiffness_estimate"))
+    return {
+        "joint_torque_commanded": controller.GetOutputPort("joint_torque_commanded"),
+        "mode": controller.GetOutputPort("mode"),
+        "contact_info": controller.GetOutputPort("contact_info"),
+        "force_desired": reference.GetOutputPort("force_desired"),
+    }
+
+
+#: controller.name -> adder(builder, scenario, plant, measured ports) returning
+#: a dict of its output ports, at least joint_torque_commanded.
 CONTROLLER_ADDERS = {
     "push": _add_push_controller,
+    "hybrid": _add_hybrid_controller,
 }
 
 
@@ -96,18 +126,11 @@ def MakeContactDiagram(scenario: Scenario, *, meshcat=None):
     builder.Connect(friction_out, external.get_input_port(1))
     builder.Connect(external.get_output_port(), plant.get_applied_generalized_force_input_port())
 
-    if scenario.controller.name not in CONTROLLER_ADDERS:
-        raise ScenarioError(f"controller.name = '{scenario.controller.name}' is unknown: "
-                            f"choose one of {', '.join(CONTROLLER_ADDERS)}")
-    torque = CONTROLLER_ADDERS[scenario.controller.name](builder, scenario, plant)
-    saturation = AddTorqueSaturation(builder, scenario.torque_limits)
-    builder.Connect(torque, saturation.get_input_port())
-    builder.Connect(saturation.get_output_port(), plant.get_actuation_input_port())
-
-    encoders = AddEncoders(builder, scenario.encoders)
-    builder.Connect(state_port, encoders.get_input_port())
+    encoders_in, encoders_out = AddEncoders(
+        builder, scenario.encoders, scenario.arm.initial_positions)
+    builder.Connect(state_port, encoders_in)
     estimator = AddKinematicEstimator(builder, MakeArmModel(), scenario.estimator)
-    builder.Connect(encoders.get_output_port(), estimator["joint_positions_measured"])
+    builder.Connect(encoders_out, estimator["joint_positions_measured"])
 
     sensor = AddForceSensor(builder, scenario.force_sensor)
     builder.Connect(wall.GetOutputPort("force_on_tip"), sensor["wrench"])
@@ -118,15 +141,34 @@ def MakeContactDiagram(scenario: Scenario, *, meshcat=None):
     if "voltage_frame" in dsp:
         builder.Connect(sensor["voltage_frame"], dsp["voltage_frame"])
 
+    if scenario.controller.name not in CONTROLLER_ADDERS:
+        raise ScenarioError(f"controller.name = '{scenario.controller.name}' is unknown: "
+                            f"choose one of {', '.join(CONTROLLER_ADDERS)}")
+    measured = {
+        "tip_pose": estimator["tip_pose"], "tip_velocity": estimator["tip_velocity"],
+        "joint_positions": estimator["joint_positions"],
+        "joint_velocities": estimator["joint_velocities"],
+        "force_filtered": dsp["force_filtered"],
+    }
+    controller_ports = CONTROLLER_ADDERS[scenario.controller.name](
+        builder, scenario, plant, measured)
+    torque = controller_ports["joint_torque_commanded"]
+    saturation = AddTorqueSaturation(builder, scenario.torque_limits)
+    motors = builder.AddNamedSystem(
+        "motors", MatrixGain(np.diag(scenario.arm.motor_torque_scale)))
+    builder.Connect(torque, saturation.get_input_port())
+    builder.Connect(saturation.get_output_port(), motors.get_input_port())
+    builder.Connect(motors.get_output_port(), plant.get_actuation_input_port())
+
     exports = {
         "joint_state_true": state_port,
         "tip_state_true": tip.GetOutputPort("tip_state"),
         "contact_force_true": wall.GetOutputPort("contact_force"),
         "penetration_true": wall.GetOutputPort("penetration"),
         "true_impedance": wall.GetOutputPort("true_impedance"),
-        "joint_positions_measured": encoders.get_output_port(),
+        "joint_positions_measured": encoders_out,
         "joint_torque_commanded": torque,
-        "joint_torque_applied": saturation.get_output_port(),
+        "joint_torque_applied": motors.get_output_port(),
         "joint_friction_torque": friction_out,
         "force_measured": dsp["force_measured"],
         "force_filtered": dsp["force_filtered"],
@@ -139,6 +181,9 @@ def MakeContactDiagram(scenario: Scenario, *, meshcat=None):
     assert exports.keys() == EXPORTED_OUTPUTS.keys()
     if "force_measured_antialiased" in dsp:
         exports["force_measured_antialiased"] = dsp["force_measured_antialiased"]
+    for name, port in controller_ports.items():
+        if name in OPTIONAL_OUTPUTS:
+            exports[name] = port
     for name, port in exports.items():
         builder.ExportOutput(port, name)
 

@@ -18,7 +18,11 @@
 * Torque saturation at the controller's limits (Appendix E: 16, 2.5, 0.6 N m).
 * Encoders: Drake's ``RotaryEncoders`` quantize the joint angles to the
   counts per revolution of chapter 3 (joint 1 614,400, joint 2 409,600,
-  joint 3 2,000; Appendix B swaps the first two; we follow chapter 3).
+  joint 3 2,000; Appendix B swaps the first two; we follow chapter 3). They
+  are incremental, zeroed at power-up with the arm at q0, as the thesis's
+  code reads them (q = q0 - counts / s): the counts quantize q - q0, so the
+  reading at q0 is exact (quantizing from angle 0 would start joint 3 off by
+  0.85 of its 3.1 mrad count).
 
 Stability: the plant applies the friction torque explicitly over one step, so
 the regularization acts as a viscous damper of F_c / v_s that must satisfy
@@ -30,7 +34,7 @@ import dataclasses as dc
 
 import numpy as np
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
-from pydrake.systems.primitives import MatrixGain, Saturation
+from pydrake.systems.primitives import AffineSystem, MatrixGain, Saturation
 from pydrake.systems.sensors import RotaryEncoders
 
 from drake_contact.errors import ScenarioError
@@ -53,10 +57,13 @@ class JointFrictionConfig:
     enabled: bool = True
     # lugre (sticks) or regularized (creeps).
     model: str = "lugre"
-    # Coulomb level per joint (N m). Joints 1-2: the motors' maximum friction
-    # torque (Appendix B: 4.41 and 0.98 N m). Joint 3: not given by the thesis;
-    # 0.05 N m (2.5 % of its 2 N m peak) is our assumption.
-    levels: list[float] = dc.field(default_factory=lambda: [4.41, 0.98, 0.05])
+    # Coulomb level per joint (N m). Not measured in the thesis: Appendix B
+    # gives the motors' *maximum* friction (4.41, 0.98 N m; joint 3 none) and
+    # the code compensates 0.3 N m at joint 2. At the maxima, the thesis's own
+    # gains would leave stiction dead bands of 3-5 mm in y and 20-35 mrad in
+    # phi, and joint 2 could not push 20 N within its 2.5 N m limit (J^T f_d
+    # alone takes 2.26 N m there). We take 1.0, 0.2 and 0.003 N m.
+    levels: list[float] = dc.field(default_factory=lambda: [1.0, 0.2, 0.003])
     # Regularization velocity (rad/s) of the regularized model.
     regularization_velocity: float = 0.02
     # LuGre bristles: natural frequency (Hz) with the joint's inertia, and
@@ -197,10 +204,19 @@ def AddTorqueSaturation(builder: DiagramBuilder, limits, *, name="torque_saturat
     return builder.AddNamedSystem(name, Saturation(-limits, limits))
 
 
-def AddEncoders(builder: DiagramBuilder, config: EncoderConfig, *, name="encoders"):
-    """Adds quantizing encoders reading q from the plant state [q; v] (6).
+def AddEncoders(builder: DiagramBuilder, config: EncoderConfig, zero_positions, *,
+                name="encoders"):
+    """Adds incremental encoders zeroed at ``zero_positions`` (q0), reading
+    q from the plant state [q; v] (6); returns (input, output) ports.
 
     A joint with 0 counts per revolution is passed through unquantized
     (RotaryEncoders requires a positive count, so we use a huge one)."""
     counts = [int(c) if c > 0 else 2**30 for c in config.counts_per_revolution]
-    return builder.AddNamedSystem(name, RotaryEncoders(6, [0, 1, 2], counts))
+    q0 = np.asarray(zero_positions, dtype=float)
+    shift = builder.AddNamedSystem(
+        f"{name}_zero", AffineSystem(D=np.hstack([np.eye(3), np.zeros((3, 3))]), y0=-q0))
+    encoders = builder.AddNamedSystem(name, RotaryEncoders(counts))
+    unshift = builder.AddNamedSystem(f"{name}_angle", AffineSystem(D=np.eye(3), y0=q0))
+    builder.Connect(shift.get_output_port(), encoders.get_input_port())
+    builder.Connect(encoders.get_output_port(), unshift.get_input_port())
+    return shift.get_input_port(), unshift.get_output_port()

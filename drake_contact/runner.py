@@ -53,6 +53,9 @@ LOG_SIGNALS = {
     "tip_acceleration_measured": ("tip_acceleration_measured", slice(0, 3)),
     "joint_positions_estimated": ("joint_positions_estimated", slice(0, 3)),
     "joint_velocities_estimated": ("joint_velocities_estimated", slice(0, 3)),
+    "mode": ("mode", 0),
+    "force_desired": ("force_desired", 0),
+    "contact_info": ("contact_info", slice(0, 4)),
 }
 
 #: Simulated seconds between divergence checks and progress reports.

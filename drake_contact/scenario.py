@@ -20,7 +20,9 @@ from drake_contact.arm import ArmConfig
 from drake_contact.compliant_wall import EnvironmentConfig
 from drake_contact.dsp import DspConfig
 from drake_contact.estimator import EstimatorConfig
+from drake_contact.force_reference import ForceReferenceConfig
 from drake_contact.force_sensor import ForceSensorConfig
+from drake_contact.hybrid_controller import HybridControllerConfig
 from drake_contact.errors import ScenarioError
 from drake_contact.joint_physics import (
     THESIS_TORQUE_LIMITS, EncoderConfig, JointFrictionConfig)
@@ -47,7 +49,7 @@ def _yaml_load(text):
 
 
 #: Controllers a scenario can name in ``controller.name``.
-CONTROLLER_NAMES = ("push",)
+CONTROLLER_NAMES = ("push", "hybrid")
 
 
 @dc.dataclass
@@ -56,8 +58,10 @@ class ControllerConfig:
 
     # One of CONTROLLER_NAMES.
     name: str = "push"
-    # Constant-force pushing law (name: push).
+    # Constant-force pushing law (name: push), a test harness.
     push: PushConfig = dc.field(default_factory=PushConfig)
+    # The thesis's approach, 5 N switch and hybrid control (name: hybrid).
+    hybrid: HybridControllerConfig = dc.field(default_factory=HybridControllerConfig)
 
     def validate(self, prefix="controller"):
         if self.name not in CONTROLLER_NAMES:
@@ -65,6 +69,29 @@ class ControllerConfig:
                 f"{prefix}.name = '{self.name}' is unknown: choose one of "
                 f"{', '.join(CONTROLLER_NAMES)}")
         getattr(self, self.name).validate(f"{prefix}.{self.name}")
+
+
+@dc.dataclass
+class ScoringConfig:
+    """Where the tracking metrics are computed, relative to the first
+    contact switch (s)."""
+
+    # Window [start, end) after the switch; end 0 means the end of the run.
+    window_start_s: float = 1.0
+    window_end_s: float = 0.0
+    # The switch's impact is the peak force within this time after it (s).
+    impact_window_s: float = 0.5
+
+    def validate(self, prefix="scoring"):
+        if not (self.window_start_s >= 0):
+            raise ScenarioError(f"{prefix}.window_start_s = {self.window_start_s} is out of "
+                                "range: must be >= 0 s")
+        if self.window_end_s != 0 and not (self.window_end_s > self.window_start_s):
+            raise ScenarioError(f"{prefix}.window_end_s = {self.window_end_s} is out of range: "
+                                f"must be 0 (to the end) or > window_start_s")
+        if not (self.impact_window_s > 0):
+            raise ScenarioError(f"{prefix}.impact_window_s = {self.impact_window_s} is out of "
+                                "range: must be > 0 s")
 
 
 @dc.dataclass
@@ -112,6 +139,8 @@ class Scenario:
     dsp: DspConfig = dc.field(default_factory=DspConfig)
     estimator: EstimatorConfig = dc.field(default_factory=EstimatorConfig)
     controller: ControllerConfig = dc.field(default_factory=ControllerConfig)
+    force_reference: ForceReferenceConfig = dc.field(default_factory=ForceReferenceConfig)
+    scoring: ScoringConfig = dc.field(default_factory=ScoringConfig)
 
     def validate(self):
         self.simulation.validate()
@@ -128,6 +157,8 @@ class Scenario:
         self.dsp.validate()
         self.estimator.validate()
         self.controller.validate()
+        self.force_reference.validate()
+        self.scoring.validate()
 
 
 def resolve_scenario_path(name_or_path) -> Path:

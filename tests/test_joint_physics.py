@@ -37,9 +37,11 @@ def test_friction_off_gives_zero_torque():
 
 
 def test_unstable_regularization_is_refused():
-    # The thesis's compensation band, 0.002 rad/s, is too sharp for the
-    # plant's explicit friction at a 1 ms step, and fine at 0.1 ms.
-    config = JointFrictionConfig(model="regularized", regularization_velocity=0.002)
+    # At the motors' maximum friction, the thesis's compensation band
+    # (0.002 rad/s) is too sharp for the plant's explicit friction at a 1 ms
+    # step, and fine at 0.1 ms.
+    config = JointFrictionConfig(model="regularized", levels=[4.41, 0.98, 0.05],
+                                 regularization_velocity=0.002)
     with pytest.raises(ScenarioError, match=r"joint_friction.regularization_velocity = 0.002 "
                        r"is out of range at arm.time_step = 0.001: joint 1 needs > 0.00428"):
         check_friction_stability(config, [1.03, 0.117, 0.00287], 1e-3)
@@ -54,17 +56,25 @@ def test_torque_saturation_clamps_at_the_thesis_limits():
     np.testing.assert_allclose(saturation.get_output_port().Eval(context), [16.0, -2.5, 0.1])
 
 
-def test_encoders_quantize_to_counts_per_revolution():
+def test_encoders_count_from_q0_in_whole_counts():
+    q0 = np.array([-0.5377671, 1.3205011, -0.7827340])
     builder = DiagramBuilder()
-    encoders = AddEncoders(builder, EncoderConfig())
-    context = encoders.CreateDefaultContext()
-    q = np.array([0.1234567, -0.7654321, 0.5])
-    encoders.get_input_port().FixValue(context, np.concatenate([q, [9, 9, 9]]))
-    measured = encoders.get_output_port().Eval(context)
+    inp, out = AddEncoders(builder, EncoderConfig(), q0)
+    builder.ExportInput(inp, "state")
+    builder.ExportOutput(out, "q")
+    diagram = builder.Build()
+    context = diagram.CreateDefaultContext()
     steps = 2 * np.pi / np.array([614400, 409600, 2000])
-    # Truncation to whole counts: never more than one count off, and on the grid.
+    # At q0 the reading is exact (zeroed at power-up).
+    diagram.get_input_port().FixValue(context, np.concatenate([q0, [9, 9, 9]]))
+    np.testing.assert_allclose(diagram.get_output_port().Eval(context), q0, atol=1e-12)
+    q = q0 + np.array([0.1234567, -0.0654321, 0.0071])
+    diagram.get_input_port().FixValue(context, np.concatenate([q, [9, 9, 9]]))
+    measured = diagram.get_output_port().Eval(context)
+    # Whole counts from q0, never more than one count off.
     assert np.all(np.abs(measured - q) < steps)
-    np.testing.assert_allclose(measured / steps, np.round(measured / steps), atol=1e-6)
+    counts = (measured - q0) / steps
+    np.testing.assert_allclose(counts, np.round(counts), atol=1e-6)
     assert abs(measured[2] - q[2]) > 1e-4  # joint 3 is visibly coarse
 
 

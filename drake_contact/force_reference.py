@@ -1,0 +1,73 @@
+"""The desired normal force f_d (thesis chapter 6 and Appendix E).
+
+f_d is a function of the time since the first contact switch: constant, or
+a square wave cycling through ``levels`` every ``half_period_s`` (the thesis:
+20 N, then 10 N after 2.5 s, back to 20 N at 5 s, ...), plus an optional
+sine A sin(2 pi f tau). As in the thesis's code, tau restarts with every
+square-wave cycle (its counter resets every 5 s). Before contact f_d is the
+first level.
+"""
+
+import dataclasses as dc
+
+import numpy as np
+from pydrake.systems.framework import LeafSystem
+
+from drake_contact.arm import CONTROL_PERIOD, CONTROL_SAMPLE_OFFSET
+from drake_contact.errors import ScenarioError
+
+
+@dc.dataclass
+class ForceReferenceConfig:
+    """The desired force schedule."""
+
+    # Force levels (N) cycled through; one level = a constant reference.
+    levels: list[float] = dc.field(default_factory=lambda: [20.0])
+    # Time on each level (s).
+    half_period_s: float = 2.5
+    # Added sine: amplitude (N) and frequency (Hz); the thesis: 4 sin(pi t).
+    sine_amplitude_n: float = 0.0
+    sine_frequency_hz: float = 0.5
+
+    def validate(self, prefix="force_reference"):
+        if not self.levels or not all(np.isfinite(x) and x >= 0 for x in self.levels):
+            raise ScenarioError(f"{prefix}.levels = {self.levels} is out of range: "
+                                "must be one or more forces >= 0 N")
+        if not (self.half_period_s > 0):
+            raise ScenarioError(f"{prefix}.half_period_s = {self.half_period_s} is out of range: "
+                                "must be > 0 s")
+        if not (np.isfinite(self.sine_amplitude_n) and self.sine_frequency_hz >= 0):
+            raise ScenarioError(f"{prefix}.sine_frequency_hz = {self.sine_frequency_hz} is out of "
+                                "range: must be >= 0 Hz")
+
+    def at(self, since_contact):
+        """f_d (N) at ``since_contact`` seconds after the first contact
+        (negative: before contact)."""
+        if since_contact < 0:
+            return self.levels[0]
+        cycle = self.half_period_s * len(self.levels)
+        k = int(np.floor(since_contact / self.half_period_s + 1e-9)) % len(self.levels)
+        tau = since_contact - cycle * np.floor(since_contact / cycle + 1e-9)
+        return self.levels[k] + self.sine_amplitude_n * np.sin(
+            2 * np.pi * self.sine_frequency_hz * tau)
+
+
+class ForceReference(LeafSystem):
+    """Input port: contact_info (4, [time of first contact or -1, x, y, phi at
+    the switch]). Output port: force_desired (1, N), updated every 1 ms."""
+
+    def __init__(self, config: ForceReferenceConfig):
+        super().__init__()
+        config.validate()
+        self._config = config
+        self._contact = self.DeclareVectorInputPort("contact_info", 4)
+        force = self.DeclareDiscreteState([config.levels[0]])
+        self.DeclarePeriodicDiscreteUpdateEvent(CONTROL_PERIOD, CONTROL_SAMPLE_OFFSET, self._update)
+        self.DeclareStateOutputPort("force_desired", force)
+
+    def _update(self, context, discrete_state):
+        t_contact = self._contact.Eval(context)[0]
+        # The value for the next sample (the controller reads it then).
+        t = context.get_time() + CONTROL_PERIOD
+        since = t - t_contact if t_contact >= 0 else -1.0
+        discrete_state.set_value([self._config.at(since)])

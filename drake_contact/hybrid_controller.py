@@ -1,0 +1,218 @@
+"""Approach, the contact switch and hybrid position/force control
+(thesis chapter 4, equations 4.10-4.21), sampled every 1 ms.
+
+Approach (position control, resolved acceleration, 4.10-4.11):
+
+    tau = M J^-1 (u_x - Jdot qdot) + h + F_c sgn(qdot)
+    u_x = K_pv (xd_d - xd) + K_pp (x_d - x)
+
+with x_d held at the start for ``hold_time_s``, then stepped to
+``first_target_x`` and on by ``step_m`` every ``step_period_s``. When the
+filtered force exceeds ``contact_threshold_n`` (5 N) the controller switches
+to contact; if it drops below ``contact_loss_threshold_n`` (0 N) it returns
+to the approach, whose ramp restarts after one step period (the thesis's code).
+
+Contact, hybrid law (4.13-4.15), S = diag(1, 0, 0):
+
+    tau = M J^-1 [(I - S) u_x - Jdot qdot] + h + F_c sgn(qdot) + J^T S f_d + J^T S u_f
+    u_f = K_fp (f_d - f) + K_fi sum_k (f_d - f)        (integral as the per-sample sum)
+
+Contact, decoupled law (4.19-4.21, Yoshikawa's form), with k_e from the
+``stiffness_estimate`` input:
+
+    tau = M J^-1 [(I - S) u_x + S k_e^-1 u_f - Jdot qdot] + h + F_c sgn(qdot) + J^T S f_d
+    u_f = K_fd (f_d - f) - K_fv k_e xd
+
+The thesis prints "S k_e u_f"; only k_e^-1 makes u_f, a force per time
+squared, an acceleration (Yoshikawa et al. 1988, the thesis's reference
+[25]). We add the force-rate damping K_fv k_e xd (k_e xd = df/dt), without
+which the decoupled force loop is undamped; K_fv = 0 gives (4.21) as printed.
+
+Samples CONTROL_SAMPLE_LEAD (1 us) before each 1 ms plant step, so its
+torque acts from that step on (see arm.py). Reads measured signals only: the estimator's tip pose, velocity, joint
+angles and velocities, and the DSP's filtered force. M, h, J, Jdot qdot and
+F_c come from the controller's own model of the arm (controller_model.py),
+which may be wrong. Jdot qdot is the true one (the thesis's code used a
+product linear in qdot; SPEC §7).
+"""
+
+import dataclasses as dc
+
+import numpy as np
+from pydrake.systems.framework import LeafSystem
+
+from drake_contact.arm import CONTROL_PERIOD, CONTROL_SAMPLE_OFFSET
+from drake_contact.controller_model import ArmModel, ControllerModelConfig
+from drake_contact.errors import ScenarioError, require_finite
+
+CONTACT_LAWS = ("hybrid", "decoupled")
+APPROACH, CONTACT = 0, 1
+
+
+@dc.dataclass
+class ApproachConfig:
+    """The approach schedule of x_d (thesis chapter 4, Appendix E)."""
+
+    # Hold x_d at start_x (m) for this long (s).
+    hold_time_s: float = 5.0
+    start_x: float = 0.454
+    # Then x_d = first_target_x (m), plus step_m (m) every step_period_s (s).
+    first_target_x: float = 0.456
+    step_m: float = 0.001
+    step_period_s: float = 1.0
+
+    def validate(self, prefix):
+        for field in ("hold_time_s", "step_period_s"):
+            if not (getattr(self, field) > 0):
+                raise ScenarioError(f"{prefix}.{field} = {getattr(self, field)} is out of range: "
+                                    "must be > 0 s")
+        if not (0 < self.step_m <= 0.01):
+            raise ScenarioError(f"{prefix}.step_m = {self.step_m} is out of range: "
+                                "must be in (0, 0.01] m")
+
+
+@dc.dataclass
+class HybridControllerConfig:
+    """Gains and switching of the approach and contact controllers."""
+
+    # Contact law: hybrid (4.13-4.15) or decoupled (4.19-4.21).
+    law: str = "hybrid"
+    # Position gains K_pp (1/s^2) and K_pv (1/s); overdamped: K_pv^2 >= 4 K_pp.
+    position_gain: float = 400.0
+    velocity_gain: float = 80.0
+    # Force gains of the hybrid law: K_fp (dimensionless) and K_fi (per sample).
+    force_gain: float = 1.0
+    force_integral_gain: float = 0.003
+    # Decoupled law: K_fd (1/s^2) and K_fv (1/s).
+    decoupled_force_gain: float = 400.0
+    decoupled_force_damping: float = 40.0
+    # Stiffness (N/m) the decoupled law uses when no identifier feeds it.
+    stiffness_estimate: float = 7000.0
+    # Compensate dry friction with the model's F_c (4.10, 4.13, 4.19).
+    friction_compensation: bool = True
+    # Switch to contact above this filtered force (N), back below the other.
+    contact_threshold_n: float = 5.0
+    contact_loss_threshold_n: float = 0.0
+    # Held position y_d (m) and angle phi_d (rad) in contact.
+    y_desired: float = 0.0
+    phi_desired: float = 0.0
+    approach: ApproachConfig = dc.field(default_factory=ApproachConfig)
+    model: ControllerModelConfig = dc.field(default_factory=ControllerModelConfig)
+
+    def validate(self, prefix="controller.hybrid"):
+        if self.law not in CONTACT_LAWS:
+            raise ScenarioError(f"{prefix}.law = '{self.law}' is unknown: choose one of "
+                                f"{', '.join(CONTACT_LAWS)}")
+        for field in ("position_gain", "velocity_gain", "force_gain", "force_integral_gain",
+                      "decoupled_force_gain", "decoupled_force_damping"):
+            value = getattr(self, field)
+            if not (np.isfinite(value) and value >= 0):
+                raise ScenarioError(f"{prefix}.{field} = {value} is out of range: must be >= 0")
+        if not (self.stiffness_estimate > 0):
+            raise ScenarioError(f"{prefix}.stiffness_estimate = {self.stiffness_estimate} is out "
+                                "of range: must be > 0 N/m")
+        if not (self.contact_threshold_n > self.contact_loss_threshold_n):
+            raise ScenarioError(
+                f"{prefix}.contact_threshold_n = {self.contact_threshold_n} is out of range: "
+                f"must exceed contact_loss_threshold_n = {self.contact_loss_threshold_n} N")
+        self.approach.validate(f"{prefix}.approach")
+        self.model.validate(f"{prefix}.model")
+
+
+class HybridController(LeafSystem):
+    """The thesis's approach and contact controllers, as one sampled system.
+
+    Input ports (measured signals):
+      tip_pose (3): [x, y, phi] (m, rad); tip_velocity (3) (m/s, rad/s);
+      joint_positions (3) (rad); joint_velocities (3) (rad/s);
+      force (1): the DSP's filtered force (N); force_desired (1) (N);
+      stiffness_estimate (1): k_e for the decoupled law (N/m).
+    Output ports (state outputs, held between samples):
+      joint_torque_commanded (3) (N m); mode (1): 0 approach, 1 contact;
+      contact_info (4): [time of the first switch (s) or -1, x, y, phi at
+        the latest switch] for the reference generator and identifiers.
+    """
+
+    def __init__(self, config: HybridControllerConfig):
+        super().__init__()
+        config.validate()
+        self._config = config
+        self._model = ArmModel(config.model)
+        self._pose = self.DeclareVectorInputPort("tip_pose", 3)
+        self._velocity = self.DeclareVectorInputPort("tip_velocity", 3)
+        self._q = self.DeclareVectorInputPort("joint_positions", 3)
+        self._qdot = self.DeclareVectorInputPort("joint_velocities", 3)
+        self._force = self.DeclareVectorInputPort("force", 1)
+        self._force_desired = self.DeclareVectorInputPort("force_desired", 1)
+        self._stiffness = self.DeclareVectorInputPort("stiffness_estimate", 1)
+        # One group per output, so each is a state output port (no Python on
+        # read), plus [approach timer (s), x_d (m), sum of force errors (N)].
+        self._tau_group = self.DeclareDiscreteState(3)
+        self._mode_group = self.DeclareDiscreteState(1)
+        self._info_group = self.DeclareDiscreteState([-1.0, 0.0, 0.0, 0.0])
+        self._internal = self.DeclareDiscreteState([0.0, config.approach.start_x, 0.0])
+        self.DeclarePeriodicDiscreteUpdateEvent(CONTROL_PERIOD, CONTROL_SAMPLE_OFFSET, self._update)
+        self.DeclareStateOutputPort("joint_torque_commanded", self._tau_group)
+        self.DeclareStateOutputPort("mode", self._mode_group)
+        self.DeclareStateOutputPort("contact_info", self._info_group)
+
+    def _approach_target(self, timer):
+        a = self._config.approach
+        if timer < a.hold_time_s - 1e-9:
+            return a.start_x
+        return a.first_target_x + a.step_m * np.floor((timer - a.hold_time_s) / a.step_period_s
+                                                      + 1e-9)
+
+    def _update(self, context, state):
+        c = self._config
+        x = self._pose.Eval(context)
+        xd = self._velocity.Eval(context)
+        q = self._q.Eval(context)
+        qdot = self._qdot.Eval(context)
+        require_finite(np.concatenate([x, xd, q, qdot]), context, "controller",
+                       "the controller's measured state")
+        f = self._force.Eval(context)[0]
+        mode = context.get_discrete_state(self._mode_group).GetAtIndex(0)
+        info = context.get_discrete_state(self._info_group).value().copy()
+        timer, x_d, error_sum = context.get_discrete_state(self._internal).value()
+        t = context.get_time()
+
+        if mode == APPROACH and f > c.contact_threshold_n:
+            mode, error_sum = CONTACT, 0.0
+            if info[0] < 0:
+                info[0] = t
+            info[1:] = x
+        elif mode == CONTACT and f < c.contact_loss_threshold_n:
+            mode = APPROACH
+            timer = c.approach.hold_time_s - c.approach.step_period_s
+        if mode == APPROACH:
+            x_d = self._approach_target(timer)
+            timer += CONTROL_PERIOD
+
+        _, J, jdot_qdot, M, h = self._model.evaluate(q, qdot)
+        u_x = c.position_gain * (np.array([x_d, c.y_desired, c.phi_desired]) - x) \
+            - c.velocity_gain * xd
+        tau = h.copy()
+        if c.friction_compensation:
+            tau += self._model.friction_compensation(qdot)
+        if mode == APPROACH:
+            tau += M @ np.linalg.solve(J, u_x - jdot_qdot)
+        else:
+            f_d = self._force_desired.Eval(context)[0]
+            error = f_d - f
+            error_sum += error
+            accel = u_x.copy()
+            accel[0] = 0.0  # (I - S) u_x
+            if c.law == "hybrid":
+                force_x = f_d + c.force_gain * error + c.force_integral_gain * error_sum
+            else:
+                k_e = self._stiffness.Eval(context)[0]
+                accel[0] = (c.decoupled_force_gain * error
+                            - c.decoupled_force_damping * k_e * xd[0]) / k_e
+                force_x = f_d
+            tau += M @ np.linalg.solve(J, accel - jdot_qdot) + J[0] * force_x
+
+        state.get_mutable_vector(self._tau_group).SetFromVector(tau)
+        state.get_mutable_vector(self._mode_group).SetAtIndex(0, mode)
+        state.get_mutable_vector(self._info_group).SetFromVector(info)
+        state.get_mutable_vector(self._internal).SetFromVector([timer, x_d, error_sum])
