@@ -31,9 +31,13 @@ class ControllerModelConfig:
     inertia_scale: list[float] = dc.field(default_factory=lambda: [1.0, 1.0, 1.0])
     # Dry friction the controller compensates (N m), joints 1-3. Default: the
     # plant's (a calibrated compensation; see JointFrictionConfig.levels).
-    friction_levels: list[float] = dc.field(default_factory=lambda: [1.0, 0.2, 0.003])
+    friction_levels: list[float] = dc.field(default_factory=lambda: [1.0, 0.2, 0.004])
     # Velocity band (rad/s) inside which the compensation is linear (thesis: 0.002).
     friction_band: float = 0.002
+    # Torque each motor is believed to deliver per N m commanded; the
+    # controller commands its desired torque divided by this. 1 = the DAC
+    # scaling of the thesis's code (command / motor maximum).
+    motor_torque_scale: list[float] = dc.field(default_factory=lambda: [1.0, 1.0, 1.0])
 
     def validate(self, prefix):
         for field in ("mass_scale", "inertia_scale"):
@@ -44,6 +48,10 @@ class ControllerModelConfig:
         if len(self.friction_levels) != 3 or not all(x >= 0 for x in self.friction_levels):
             raise ScenarioError(f"{prefix}.friction_levels = {self.friction_levels} is out of "
                                 "range: must be 3 values >= 0 N m")
+        scale = self.motor_torque_scale
+        if len(scale) != 3 or not all(np.isfinite(x) and 0.5 <= x <= 2.0 for x in scale):
+            raise ScenarioError(f"{prefix}.motor_torque_scale = {scale} is out of range: "
+                                "must be 3 values in [0.5, 2]")
         if not (self.friction_band > 0):
             raise ScenarioError(f"{prefix}.friction_band = {self.friction_band} is out of range: "
                                 "must be > 0 rad/s")
@@ -72,6 +80,7 @@ class ArmModel:
         self._tip = self.plant.GetFrameByName(TIP_FRAME)
         self._world = self.plant.world_frame()
         self.friction_levels = np.asarray(config.friction_levels, dtype=float)
+        self.motor_torque_scale = np.asarray(config.motor_torque_scale, dtype=float)
 
     def evaluate(self, q, qdot):
         """(pose [x, y, phi], J (3x3), Jdot qdot (3), M (3x3), h (3))."""
@@ -84,6 +93,10 @@ class ArmModel:
         jdot_qdot = np.array([bias.translational()[0], bias.translational()[1],
                               bias.rotational()[2]])
         return pose, J, jdot_qdot, plant.CalcMassMatrix(context), plant.CalcBiasTerm(context)
+
+    def command(self, desired_torque):
+        """The motor command that, by the model, gives ``desired_torque``."""
+        return desired_torque / self.motor_torque_scale
 
     def friction_compensation(self, qdot):
         """F_c sgn(qdot), linear inside |qdot| < band (the thesis's code)."""

@@ -212,7 +212,7 @@ class HybridController(LeafSystem):
                 force_x = f_d
             tau += M @ np.linalg.solve(J, accel - jdot_qdot) + J[0] * force_x
 
-        state.get_mutable_vector(self._tau_group).SetFromVector(tau)
+        state.get_mutable_vector(self._tau_group).SetFromVector(self._model.command(tau))
         state.get_mutable_vector(self._mode_group).SetAtIndex(0, mode)
         state.get_mutable_vector(self._info_group).SetFromVector(info)
         state.get_mutable_vector(self._internal).SetFromVector([timer, x_d, error_sum])

@@ -62,8 +62,9 @@ class JointFrictionConfig:
     # the code compensates 0.3 N m at joint 2. At the maxima, the thesis's own
     # gains would leave stiction dead bands of 3-5 mm in y and 20-35 mrad in
     # phi, and joint 2 could not push 20 N within its 2.5 N m limit (J^T f_d
-    # alone takes 2.26 N m there). We take 1.0, 0.2 and 0.003 N m.
-    levels: list[float] = dc.field(default_factory=lambda: [1.0, 0.2, 0.003])
+    # alone takes 2.26 N m there). We take 1.0, 0.2 and 0.004 N m; joint 3's
+    # stiction also damps the limit cycle its coarse encoder drives.
+    levels: list[float] = dc.field(default_factory=lambda: [1.0, 0.2, 0.004])
     # Regularization velocity (rad/s) of the regularized model.
     regularization_velocity: float = 0.02
     # LuGre bristles: natural frequency (Hz) with the joint's inertia, and

@@ -108,3 +108,53 @@ def plot_sensor_figures(log: dict, scenario, out_dir) -> list[Path]:
         fig.savefig(paths[-1], dpi=110)
         plt.close(fig)
     return paths
+
+
+def plot_contact_figures(log: dict, scenario, out_dir) -> list[Path]:
+    """Fig 4.2 (the force through the 5 N switch) and the force tracking
+    against f_d with y and phi (Figs 6.10, 6.15), for runs with a mode log."""
+    import numpy as np
+
+    if "mode" not in log or not np.any(log["mode"] > 0):
+        return []
+    out_dir = Path(out_dir)
+    t = log["t"]
+    t_c = t[np.argmax(log["mode"] > 0)]
+    paths = []
+    near = (t >= t_c - 0.3) & (t <= t_c + 0.7)
+    fig, ax = plt.subplots(figsize=(8, 4))
+    ax.plot(t[near] - t_c, log["force_measured"][near], lw=0.7, alpha=0.6, label="measured (raw)")
+    ax.plot(t[near] - t_c, log["force_filtered"][near], lw=1.2, label="filtered (controller)")
+    ax.plot(t[near] - t_c, log["contact_force_true"][near], "k", lw=1.2, label="true")
+    ax.plot(t[near] - t_c, log["force_desired"][near], "r--", lw=1, label="desired")
+    ax.axhline(scenario.controller.hybrid.contact_threshold_n, color="grey", ls=":", lw=1)
+    ax.axvline(0, color="grey", ls=":", lw=1)
+    ax.set_xlabel("time from the switch (s)")
+    ax.set_ylabel("force (N)")
+    ax.set_title("Fig 4.2: force from position control to hybrid control")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    paths.append(out_dir / "fig4_2_switch.png")
+    fig.savefig(paths[-1], dpi=110)
+    plt.close(fig)
+
+    after = t >= t_c - 0.5
+    fig, axes = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
+    axes[0].plot(t[after] - t_c, log["force_desired"][after], "r--", lw=1, label="desired")
+    axes[0].plot(t[after] - t_c, log["contact_force_true"][after], "k", lw=1, label="true")
+    axes[0].set_ylabel("force (N)")
+    axes[0].legend(fontsize=8)
+    axes[1].plot(t[after] - t_c, log["tip_pose_true"][after, 1] * 1e3)
+    axes[1].set_ylabel("y error (mm)")
+    axes[2].plot(t[after] - t_c, log["tip_pose_true"][after, 2] * 1e3)
+    axes[2].set_ylabel("phi error (mrad)")
+    axes[2].set_xlabel("time from the first contact (s)")
+    for ax in axes:
+        ax.grid(True, alpha=0.3)
+    fig.suptitle(f"Fig 6.10/6.15: force tracking, {scenario.description}", fontsize=9)
+    fig.tight_layout()
+    paths.append(out_dir / "fig6_10_force_tracking.png")
+    fig.savefig(paths[-1], dpi=110)
+    plt.close(fig)
+    return paths

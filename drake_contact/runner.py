@@ -195,7 +195,43 @@ def compute_metrics(scenario: Scenario, log: dict, wall_s: float) -> dict:
         metrics["steady_stiffness_ratio_n_per_m"] = f_mean / x_mean
         metrics["steady_stiffness_error"] = f_mean / x_mean / K_true - 1.0
     metrics.update(sensor_metrics(log, scenario.dsp.tare_window_s))
+    metrics.update(tracking_metrics(log, scenario))
     return metrics
+
+
+def tracking_metrics(log: dict, scenario: Scenario) -> dict:
+    """Contact switch and force/position tracking against ground truth, in
+    the scoring window after the first switch (runs with a ``mode`` log)."""
+    if "mode" not in log or not np.any(log["mode"] > 0):
+        return {"contact_time_s": None} if "mode" in log else {}
+    t = log["t"]
+    i_contact = int(np.argmax(log["mode"] > 0))
+    t_contact = float(t[i_contact])
+    s = scenario.scoring
+    end = t[-1] + 1.0 if s.window_end_s == 0 else t_contact + s.window_end_s
+    window = (t >= t_contact + s.window_start_s) & (t < end)
+    out = {
+        "contact_time_s": t_contact,
+        "mode_switches": int(np.sum(np.abs(np.diff(log["mode"])) > 0)),
+        "impact_peak_force_n": float(np.max(log["contact_force_true"][
+            (t >= t_contact) & (t < t_contact + s.impact_window_s)])),
+        "scoring_window_s": [float(t_contact + s.window_start_s), float(min(end, t[-1]))],
+    }
+    if window.sum() > 0:
+        force = log["contact_force_true"][window]
+        error = force - log["force_desired"][window]
+        hybrid = scenario.controller.hybrid
+        out.update({
+            "force_mean_n": float(np.mean(force)),
+            "force_desired_mean_n": float(np.mean(log["force_desired"][window])),
+            "force_rmse_n": float(np.sqrt(np.mean(error**2))),
+            "force_mean_abs_error_n": float(np.mean(np.abs(error))),
+            "y_max_abs_error_m": float(np.max(np.abs(log["tip_pose_true"][window, 1]
+                                                      - hybrid.y_desired))),
+            "phi_max_abs_error_rad": float(np.max(np.abs(log["tip_pose_true"][window, 2]
+                                                         - hybrid.phi_desired))),
+        })
+    return out
 
 
 def run(scenario: Scenario, out_dir, *, progress=None, figures=True) -> RunResult:
@@ -212,9 +248,11 @@ def run(scenario: Scenario, out_dir, *, progress=None, figures=True) -> RunResul
     np.savez(out / "log.npz", **log)
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2, sort_keys=True) + "\n")
     if figures and len(log["t"]) > 1:
-        from drake_contact.plotting import plot_main_signals, plot_sensor_figures
+        from drake_contact.plotting import (
+            plot_contact_figures, plot_main_signals, plot_sensor_figures)
         plot_main_signals(log, scenario, out)
         plot_sensor_figures(log, scenario, out)
+        plot_contact_figures(log, scenario, out)
     return RunResult(log=log, metrics=metrics, status=status, message=message)
 
 

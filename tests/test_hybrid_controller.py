@@ -1,0 +1,129 @@
+"""The hybrid controller, one sample against the thesis's formulas, its
+switching, and the force reference."""
+
+import dataclasses as dc
+
+import numpy as np
+import pytest
+
+import thesis_closed_forms as thesis
+from drake_contact.arm import THESIS_Q0
+from drake_contact.force_reference import ForceReferenceConfig
+from drake_contact.hybrid_controller import HybridController, HybridControllerConfig
+
+S = np.diag([1.0, 0.0, 0.0])
+
+
+def sample(config, *, force, q=None, qdot=None, f_d=20.0, k_e=7000.0, steps=1,
+           controller=None, context=None):
+    controller = controller or HybridController(config)
+    context = context or controller.CreateDefaultContext()
+    q = np.array(THESIS_Q0) + np.array([0.01, -0.02, 0.005]) if q is None else q
+    qdot = np.array([0.02, -0.05, 0.1]) if qdot is None else qdot
+    x = thesis.forward_kinematics(q)
+    xd = thesis.jacobian(q) @ qdot
+    inputs = {"tip_pose": x, "tip_velocity": xd, "joint_positions": q,
+              "joint_velocities": qdot, "force": [force], "force_desired": [f_d],
+              "stiffness_estimate": [k_e]}
+    for name, value in inputs.items():
+        controller.GetInputPort(name).FixValue(context, value)
+    for _ in range(steps):
+        new = controller.EvalUniquePeriodicDiscreteUpdate(context)
+        for group in range(new.num_groups()):
+            context.SetDiscreteState(group, new.get_vector(group).value().copy())
+    tau = controller.GetOutputPort("joint_torque_commanded").Eval(context)
+    mode = controller.GetOutputPort("mode").Eval(context)[0]
+    return tau, mode, q, qdot, x, xd
+
+
+def expected_terms(q, qdot):
+    J = thesis.jacobian(q)
+    return J, thesis.jdot_qdot(q, qdot), thesis.mass_matrix(q), thesis.coriolis_centrifugal(q, qdot)
+
+
+def friction(config, qdot):
+    return np.array(config.model.friction_levels) * np.clip(qdot / config.model.friction_band, -1, 1)
+
+
+def test_approach_sample_is_resolved_acceleration_control():
+    config = HybridControllerConfig()
+    tau, mode, q, qdot, x, xd = sample(config, force=1.0)
+    J, jdq, M, h = expected_terms(q, qdot)
+    x_d = np.array([config.approach.start_x, 0.0, 0.0])
+    u_x = 400.0 * (x_d - x) - 80.0 * xd
+    expected = M @ np.linalg.solve(J, u_x - jdq) + h + friction(config, qdot)
+    assert mode == 0
+    np.testing.assert_allclose(tau, expected, rtol=1e-9, atol=1e-9)
+
+
+def test_contact_sample_is_the_hybrid_pi_law():
+    config = HybridControllerConfig(force_gain=1.0, force_integral_gain=0.003)
+    tau, mode, q, qdot, x, xd = sample(config, force=12.0, steps=3)
+    J, jdq, M, h = expected_terms(q, qdot)
+    u_x = 400.0 * (np.array([config.approach.start_x, 0, 0]) - x) - 80.0 * xd
+    # Switched on the first sample; the error summed over three samples.
+    u_f = 1.0 * (20.0 - 12.0) + 0.003 * 3 * (20.0 - 12.0)
+    expected = (M @ np.linalg.solve(J, (np.eye(3) - S) @ u_x - jdq) + h + friction(config, qdot)
+                + J.T @ S @ np.array([20.0, 0, 0]) + J.T @ S @ np.array([u_f, 0, 0]))
+    assert mode == 1
+    np.testing.assert_allclose(tau, expected, rtol=1e-9, atol=1e-9)
+
+
+def test_decoupled_law_uses_the_stiffness_input():
+    config = HybridControllerConfig(law="decoupled", decoupled_force_gain=400.0,
+                                    decoupled_force_damping=40.0)
+    tau, mode, q, qdot, x, xd = sample(config, force=12.0, k_e=25000.0)
+    J, jdq, M, h = expected_terms(q, qdot)
+    u_x = 400.0 * (np.array([config.approach.start_x, 0, 0]) - x) - 80.0 * xd
+    accel = (np.eye(3) - S) @ u_x
+    accel[0] = (400.0 * (20.0 - 12.0) - 40.0 * 25000.0 * xd[0]) / 25000.0
+    expected = (M @ np.linalg.solve(J, accel - jdq) + h + friction(config, qdot)
+                + J.T @ S @ np.array([20.0, 0, 0]))
+    np.testing.assert_allclose(tau, expected, rtol=1e-9, atol=1e-9)
+
+
+def test_model_errors_and_motor_belief_change_the_command():
+    base = HybridControllerConfig(friction_compensation=False)
+    wrong = dc.replace(base, model=dc.replace(base.model, mass_scale=[1.2, 1.2, 1.2],
+                                              motor_torque_scale=[1.0, 1.25, 1.0]))
+    tau_base = sample(base, force=1.0)[0]
+    tau_wrong = sample(wrong, force=1.0)[0]
+    assert not np.allclose(tau_base, tau_wrong)
+    # The motor belief divides the command.
+    only_motor = dc.replace(base, model=dc.replace(base.model, motor_torque_scale=[1.0, 1.25, 1.0]))
+    np.testing.assert_allclose(sample(only_motor, force=1.0)[0], tau_base / [1.0, 1.25, 1.0])
+
+
+def test_switches_at_the_threshold_and_back_when_contact_is_lost():
+    config = HybridControllerConfig()
+    controller = HybridController(config)
+    context = controller.CreateDefaultContext()
+    kw = dict(controller=controller, context=context)
+    _, mode, *_ = sample(config, force=4.9, **kw)
+    assert mode == 0
+    _, mode, *_ = sample(config, force=5.1, **kw)
+    assert mode == 1
+    info = controller.GetOutputPort("contact_info").Eval(context)
+    assert info[0] == pytest.approx(0.0)  # first contact time (the context's t = 0)
+    _, mode, *_ = sample(config, force=-0.1, **kw)
+    assert mode == 0
+
+
+def test_approach_schedule_holds_then_steps_one_mm_per_second():
+    config = HybridControllerConfig()
+    controller = HybridController(config)
+    assert controller._approach_target(4.999) == pytest.approx(0.454)
+    assert controller._approach_target(5.0) == pytest.approx(0.456)
+    assert controller._approach_target(6.5) == pytest.approx(0.457)
+    assert controller._approach_target(8.0) == pytest.approx(0.459)
+
+
+def test_force_reference_square_wave_and_sine():
+    square = ForceReferenceConfig(levels=[20.0, 10.0], half_period_s=2.5)
+    assert [square.at(t) for t in (-1.0, 0.0, 2.4, 2.5, 4.9, 5.0, 7.6)] == \
+        [20.0, 20.0, 20.0, 10.0, 10.0, 20.0, 10.0]
+    sine = dc.replace(square, sine_amplitude_n=4.0, sine_frequency_hz=0.5)
+    assert sine.at(0.5) == pytest.approx(24.0)
+    assert sine.at(3.0) == pytest.approx(10.0 + 4.0 * np.sin(np.pi * 3.0))
+    # The sine's time restarts every square-wave cycle (the thesis's counter).
+    assert sine.at(5.5) == pytest.approx(24.0)
