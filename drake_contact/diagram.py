@@ -23,6 +23,7 @@ from drake_contact.estimator import AddKinematicEstimator
 from drake_contact.force_reference import ForceReference
 from drake_contact.force_sensor import AddForceSensor
 from drake_contact.hybrid_controller import HybridController
+from drake_contact.identification import AddIdentifiers
 from drake_contact.joint_physics import (
     AddEncoders, AddJointFriction, AddTorqueSaturation, check_friction_stability)
 from drake_contact.push_controller import ConstantForcePushController
@@ -76,11 +77,14 @@ def _add_hybrid_controller(builder, scenario, plant, measured):
                     controller.GetInputPort("force_desired"))
     builder.Connect(controller.GetOutputPort("contact_info"),
                     reference.GetInputPort("contact_info"))
-    # The decoupled law's k_e: the scenario's constant until an identifier feeds it.
-    stiffness = builder.AddNamedSystem(
-        "stiffness_estimate", ConstantVectorSource([config.stiffness_estimate]))
-    builder.Connect(stiffness.get_output_port(), controller.GetInputPort("stiffness_estimate"))
+    # The decoupled law's k_e: the scenario's constant, or an identifier's
+    # K_e (connected once the identifiers exist).
+    if not config.stiffness_source:
+        stiffness = builder.AddNamedSystem(
+            "stiffness_estimate", ConstantVectorSource([config.stiffness_estimate]))
+        builder.Connect(stiffness.get_output_port(), controller.GetInputPort("stiffness_estimate"))
     return {
+        "stiffness_estimate_input": controller.GetInputPort("stiffness_estimate"),
         "joint_torque_commanded": controller.GetOutputPort("joint_torque_commanded"),
         "mode": controller.GetOutputPort("mode"),
         "contact_info": controller.GetOutputPort("contact_info"),
@@ -149,10 +153,25 @@ def MakeContactDiagram(scenario: Scenario, *, meshcat=None):
         "joint_positions": estimator["joint_positions"],
         "joint_velocities": estimator["joint_velocities"],
         "force_filtered": dsp["force_filtered"],
+        "force_measured": dsp["force_measured"],
+        "tip_acceleration": estimator["tip_acceleration"],
+        "tip_velocity_raw": estimator["tip_velocity_raw"],
+        "tip_acceleration_raw": estimator["tip_acceleration_raw"],
     }
     controller_ports = CONTROLLER_ADDERS[scenario.controller.name](
         builder, scenario, plant, measured)
     torque = controller_ports["joint_torque_commanded"]
+    identifier_ports = {}
+    if scenario.identifiers:
+        identifier_ports = AddIdentifiers(builder, scenario.identifiers, measured,
+                                          controller_ports["contact_info"],
+                                          scenario.simulation.seed)
+        source = scenario.controller.hybrid.stiffness_source
+        if source:
+            pick = builder.AddNamedSystem("stiffness_from_identifier",
+                                          MatrixGain(np.array([[0.0, 0.0, 1.0]])))
+            builder.Connect(identifier_ports[source]["impedance"], pick.get_input_port())
+            builder.Connect(pick.get_output_port(), controller_ports["stiffness_estimate_input"])
     saturation = AddTorqueSaturation(builder, scenario.torque_limits)
     motors = builder.AddNamedSystem(
         "motors", MatrixGain(np.diag(scenario.arm.motor_torque_scale)))
@@ -184,6 +203,10 @@ def MakeContactDiagram(scenario: Scenario, *, meshcat=None):
     for name, port in controller_ports.items():
         if name in OPTIONAL_OUTPUTS:
             exports[name] = port
+    for name, ports in identifier_ports.items():
+        exports[f"impedance_{name}"] = ports["impedance"]
+        if "force_estimate" in ports:
+            exports[f"force_estimate_{name}"] = ports["force_estimate"]
     for name, port in exports.items():
         builder.ExportOutput(port, name)
 

@@ -116,7 +116,8 @@ def AddKinematicEstimator(builder: DiagramBuilder, plant_model, config: Estimato
                           name="estimator"):
     """Adds the estimator; returns a dict of ports: ``joint_positions_measured``
     (input, 3) and outputs ``tip_pose`` (3), ``tip_velocity`` (3),
-    ``tip_acceleration`` (3), ``joint_positions`` (3: q_hat), ``joint_velocities`` (3)."""
+    ``tip_acceleration`` (3), ``joint_positions`` (3: q_hat), ``joint_velocities`` (3),
+    and the unfiltered differences ``tip_velocity_raw``, ``tip_acceleration_raw`` (3)."""
     config.validate()
     b, a = butterworth_digital(config.cutoff_hz, 1.0 / CONTROL_PERIOD)
     joints = builder.AddNamedSystem(f"{name}_joint_filters", _joint_filters(b, a, CONTROL_PERIOD))
@@ -125,6 +126,12 @@ def AddKinematicEstimator(builder: DiagramBuilder, plant_model, config: Estimato
     rates = builder.AddNamedSystem(
         f"{name}_tip_rates", differencing_filter_system(b, a, CONTROL_PERIOD, channels=3))
     rates_split = builder.AddNamedSystem(f"{name}_tip_rates_split", Demultiplexer([3, 3]))
+    # Unfiltered differences too (the thesis's Fig 6.3 identifies on these).
+    raw = builder.AddNamedSystem(
+        f"{name}_tip_rates_raw", differencing_filter_system([1.0], [1.0], CONTROL_PERIOD, channels=3))
+    raw_split = builder.AddNamedSystem(f"{name}_tip_rates_raw_split", Demultiplexer([3, 3]))
+    builder.Connect(fk.GetOutputPort("tip_pose"), raw.get_input_port())
+    builder.Connect(raw.get_output_port(), raw_split.get_input_port())
     builder.Connect(joints.get_output_port(), split.get_input_port())
     builder.Connect(split.get_output_port(0), fk.GetInputPort("joint_positions"))
     builder.Connect(fk.GetOutputPort("tip_pose"), rates.get_input_port())
@@ -136,4 +143,6 @@ def AddKinematicEstimator(builder: DiagramBuilder, plant_model, config: Estimato
         "tip_acceleration": rates_split.get_output_port(1),
         "joint_positions": split.get_output_port(0),
         "joint_velocities": split.get_output_port(1),
+        "tip_velocity_raw": raw_split.get_output_port(0),
+        "tip_acceleration_raw": raw_split.get_output_port(1),
     }

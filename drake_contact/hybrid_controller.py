@@ -88,6 +88,8 @@ class HybridControllerConfig:
     decoupled_force_damping: float = 40.0
     # Stiffness (N/m) the decoupled law uses when no identifier feeds it.
     stiffness_estimate: float = 7000.0
+    # Name of an identifier whose K_e feeds the decoupled law ('' = the constant).
+    stiffness_source: str = ""
     # Compensate dry friction with the model's F_c (4.10, 4.13, 4.19).
     friction_compensation: bool = True
     # Switch to contact above this filtered force (N), back below the other.

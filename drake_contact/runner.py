@@ -17,17 +17,19 @@ import dataclasses as dc
 import json
 import sys
 import time
+import zlib
 from pathlib import Path
 
 import numpy as np
 from pydrake.common import RandomGenerator
 from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import LogVectorOutput
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import LogVectorOutput, RandomSource
 
 from drake_contact.arm import CONTROL_PERIOD
 from drake_contact.diagram import MakeContactDiagram
 from drake_contact.errors import SimulationDiverged
+from drake_contact.identification import add_stiffness_ratio, identification_metrics
 from drake_contact.scenario import Scenario, dump_scenario
 from drake_contact.spectra import sensor_metrics
 
@@ -58,6 +60,10 @@ LOG_SIGNALS = {
     "contact_info": ("contact_info", slice(0, 4)),
 }
 
+#: Exported ports logged under their own name when the scenario has them
+#: (one per identifier).
+DYNAMIC_LOG_PREFIXES = ("impedance_", "force_estimate_")
+
 #: Simulated seconds between divergence checks and progress reports.
 CHUNK_S = 0.1
 
@@ -80,7 +86,9 @@ def simulate(scenario: Scenario, *, progress=None):
     builder = DiagramBuilder()
     station = builder.AddNamedSystem("station", MakeContactDiagram(scenario))
     loggers = {}
-    for port_name in dict.fromkeys(v[0] for v in LOG_SIGNALS.values()):
+    dynamic = [station.get_output_port(i).get_name() for i in range(station.num_output_ports())
+               if station.get_output_port(i).get_name().startswith(DYNAMIC_LOG_PREFIXES)]
+    for port_name in dict.fromkeys([v[0] for v in LOG_SIGNALS.values()] + dynamic):
         if not station.HasOutputPort(port_name):
             continue
         loggers[port_name] = LogVectorOutput(
@@ -91,7 +99,7 @@ def simulate(scenario: Scenario, *, progress=None):
 
     simulator = Simulator(diagram)
     context = simulator.get_mutable_context()
-    diagram.SetRandomContext(context, RandomGenerator(scenario.simulation.seed))
+    SeedRandomSources(diagram, context, scenario.simulation.seed)
     duration = scenario.simulation.duration
     force_limit = scenario.simulation.force_limit
     status, message = "completed", ""
@@ -120,6 +128,29 @@ def simulate(scenario: Scenario, *, progress=None):
     if status == "diverged":
         log = _truncate_at_divergence(log, force_limit)
     return log, status, message, wall_s
+
+
+def SeedRandomSources(diagram, context, seed):
+    """Seeds every RandomSource from the scenario seed and its own name.
+
+    Drake's SetRandomContext draws every subsystem's random state from one
+    generator in diagram order (LinearSystems draw too), so adding any system
+    would change the noise. Seeding each source by name keeps the same noise
+    whatever controller or identifier a user wires in."""
+    diagram.SetRandomContext(context, RandomGenerator(seed))
+    for system in _leaf_systems(diagram):
+        if isinstance(system, RandomSource):
+            name_hash = zlib.crc32(system.GetSystemPathname().encode())
+            system.SetRandomContext(system.GetMyMutableContextFromRoot(context),
+                                    RandomGenerator((seed * 1_000_003 + name_hash) % 2**31))
+
+
+def _leaf_systems(diagram):
+    for system in diagram.GetSystems():
+        if isinstance(system, Diagram):
+            yield from _leaf_systems(system)
+        else:
+            yield system
 
 
 def _check_divergence(loggers, context, force_limit):
@@ -164,6 +195,11 @@ def _collect(loggers, context):
     for key, (port_name, columns) in LOG_SIGNALS.items():
         if port_name in logs:
             out[key] = logs[port_name].data()[columns, :n].T.copy()
+    for port_name, log in logs.items():
+        if port_name.startswith(DYNAMIC_LOG_PREFIXES):
+            data = log.data()[:, :n].T.copy()
+            out[port_name] = data[:, 0] if data.shape[1] == 1 else data
+    add_stiffness_ratio(out)
     return out
 
 
@@ -196,6 +232,7 @@ def compute_metrics(scenario: Scenario, log: dict, wall_s: float) -> dict:
         metrics["steady_stiffness_error"] = f_mean / x_mean / K_true - 1.0
     metrics.update(sensor_metrics(log, scenario.dsp.tare_window_s))
     metrics.update(tracking_metrics(log, scenario))
+    metrics.update(identification_metrics(log, scenario.identifiers))
     return metrics
 
 

@@ -23,6 +23,7 @@ from drake_contact.estimator import EstimatorConfig
 from drake_contact.force_reference import ForceReferenceConfig
 from drake_contact.force_sensor import ForceSensorConfig
 from drake_contact.hybrid_controller import HybridControllerConfig
+from drake_contact.identification import IdentifierConfig, validate_identifiers
 from drake_contact.errors import ScenarioError
 from drake_contact.joint_physics import (
     THESIS_TORQUE_LIMITS, EncoderConfig, JointFrictionConfig)
@@ -140,6 +141,8 @@ class Scenario:
     estimator: EstimatorConfig = dc.field(default_factory=EstimatorConfig)
     controller: ControllerConfig = dc.field(default_factory=ControllerConfig)
     force_reference: ForceReferenceConfig = dc.field(default_factory=ForceReferenceConfig)
+    # Online identifiers, run side by side from the first contact switch.
+    identifiers: list[IdentifierConfig] = dc.field(default_factory=list)
     scoring: ScoringConfig = dc.field(default_factory=ScoringConfig)
 
     def validate(self):
@@ -158,6 +161,14 @@ class Scenario:
         self.estimator.validate()
         self.controller.validate()
         self.force_reference.validate()
+        validate_identifiers(self.identifiers)
+        if self.identifiers and self.controller.name != "hybrid":
+            raise ScenarioError("identifiers need controller.name = 'hybrid' (they start at "
+                                "its contact switch)")
+        source = self.controller.hybrid.stiffness_source
+        if source and source not in {c.name for c in self.identifiers}:
+            raise ScenarioError(f"controller.hybrid.stiffness_source = '{source}' names no "
+                                f"identifier: choose one of the scenario's identifiers or ''")
         self.scoring.validate()
 
 
