@@ -6,6 +6,19 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+
+def _save(fig, axes, path, *, legend=True) -> Path:
+    """Grid (and legend) on every axis, tight layout, write the PNG, close."""
+    for ax in np.atleast_1d(axes):
+        ax.grid(True, which="both", alpha=0.3)
+        if legend and ax.get_legend_handles_labels()[0]:
+            ax.legend(loc="best", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
 
 
 def plot_main_signals(log: dict, scenario, out_dir) -> Path:
@@ -26,24 +39,16 @@ def plot_main_signals(log: dict, scenario, out_dir) -> Path:
         axes[3].plot(t, log["joint_torque_applied"][:, i], label=f"joint {i + 1}")
     axes[3].set_ylabel("applied torque (N m)")
     axes[3].set_xlabel("time (s)")
-    for ax in axes:
-        ax.grid(True, alpha=0.3)
-        ax.legend(loc="best", fontsize=8)
     env = scenario.environment
     fig.suptitle(f"{scenario.description or 'run'}\n"
                  f"K_e = {env.stiffness:.4g} N/m, B_e = {env.damping:.4g} N s/m, "
                  f"M_e = {env.mass:.4g} kg", fontsize=10)
-    fig.tight_layout()
-    path = Path(out_dir) / "main_signals.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, axes, Path(out_dir) / "main_signals.png")
 
 
 def plot_sensor_figures(log: dict, scenario, out_dir) -> list[Path]:
     """Fig 4.4 (a raw force sample) always; Figs 3.5 and 3.7 when the log has
     the 190 Hz RC probe channel."""
-    import numpy as np
     from scipy import signal as sps
 
     from drake_contact.filters import rc_lowpass_analog
@@ -64,12 +69,7 @@ def plot_sensor_figures(log: dict, scenario, out_dir) -> list[Path]:
     ax.set_xlabel("time (s)")
     ax.set_ylabel("force (N)")
     ax.set_title("Fig 4.4: signal from the force sensor")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    paths.append(out_dir / "fig4_4_raw_force.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    paths.append(_save(fig, ax, out_dir / "fig4_4_raw_force.png"))
 
     if "force_measured_antialiased" in log and pressing.sum() >= 2048:
         f, p_raw = welch_psd(log["force_measured"][pressing])
@@ -83,12 +83,7 @@ def plot_sensor_figures(log: dict, scenario, out_dir) -> list[Path]:
         ax.set_xlabel("frequency (Hz)")
         ax.set_ylabel("PSD (N$^2$/Hz)")
         ax.set_title("Fig 3.5: PSD of the raw force, unfiltered and 190 Hz filtered")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
-        fig.tight_layout()
-        paths.append(out_dir / "fig3_5_psd.png")
-        fig.savefig(paths[-1], dpi=110)
-        plt.close(fig)
+        paths.append(_save(fig, ax, out_dir / "fig3_5_psd.png"))
 
         aa = scenario.dsp.anti_aliasing
         num, den = rc_lowpass_analog(aa.R1, aa.R2, aa.C1, aa.C2)
@@ -101,20 +96,13 @@ def plot_sensor_figures(log: dict, scenario, out_dir) -> list[Path]:
         ax.set_xlabel("frequency (Hz)")
         ax.set_ylabel("gain (dB)")
         ax.set_title("Fig 3.7: gain of the 2nd-order RC low-pass (190 Hz)")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
-        fig.tight_layout()
-        paths.append(out_dir / "fig3_7_rc_gain.png")
-        fig.savefig(paths[-1], dpi=110)
-        plt.close(fig)
+        paths.append(_save(fig, ax, out_dir / "fig3_7_rc_gain.png"))
     return paths
 
 
 def plot_contact_figures(log: dict, scenario, out_dir) -> list[Path]:
     """Fig 4.2 (the force through the 5 N switch) and the force tracking
     against f_d with y and phi (Figs 6.10, 6.15), for runs with a mode log."""
-    import numpy as np
-
     if "mode" not in log or not np.any(log["mode"] > 0):
         return []
     out_dir = Path(out_dir)
@@ -132,29 +120,18 @@ def plot_contact_figures(log: dict, scenario, out_dir) -> list[Path]:
     ax.set_xlabel("time from the switch (s)")
     ax.set_ylabel("force (N)")
     ax.set_title("Fig 4.2: force from position control to hybrid control")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    paths.append(out_dir / "fig4_2_switch.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    paths.append(_save(fig, ax, out_dir / "fig4_2_switch.png"))
 
     after = t >= t_c - 0.5
     fig, axes = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
     axes[0].plot(t[after] - t_c, log["force_desired"][after], "r--", lw=1, label="desired")
     axes[0].plot(t[after] - t_c, log["contact_force_true"][after], "k", lw=1, label="true")
     axes[0].set_ylabel("force (N)")
-    axes[0].legend(fontsize=8)
     axes[1].plot(t[after] - t_c, log["tip_pose_true"][after, 1] * 1e3)
     axes[1].set_ylabel("y error (mm)")
     axes[2].plot(t[after] - t_c, log["tip_pose_true"][after, 2] * 1e3)
     axes[2].set_ylabel("phi error (mrad)")
     axes[2].set_xlabel("time from the first contact (s)")
-    for ax in axes:
-        ax.grid(True, alpha=0.3)
     fig.suptitle(f"Fig 6.10/6.15: force tracking, {scenario.description}", fontsize=9)
-    fig.tight_layout()
-    paths.append(out_dir / "fig6_10_force_tracking.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    paths.append(_save(fig, axes, out_dir / "fig6_10_force_tracking.png"))
     return paths
