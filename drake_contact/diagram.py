@@ -24,6 +24,7 @@ from drake_contact.force_reference import ForceReference
 from drake_contact.force_sensor import AddForceSensor
 from drake_contact.hybrid_controller import HybridController
 from drake_contact.identification import AddIdentifiers
+from drake_contact.nn_compensator import NnCompensator
 from drake_contact.joint_physics import (
     AddEncoders, AddJointFriction, AddTorqueSaturation, check_friction_stability)
 from drake_contact.push_controller import ConstantForcePushController
@@ -56,6 +57,8 @@ OPTIONAL_OUTPUTS = {
     "mode": (1, "controller mode: 0 approach, 1 contact"),
     "force_desired": (1, "desired normal force f_d (N)"),
     "contact_info": (4, "[first switch time (s) or -1, x, y, phi at the switch]"),
+    "nn_output": (3, "compensator output n = [n_x (N), n_y (N), n_phi (N m)]"),
+    "hybrid_torque": (3, "the hybrid part's command tau_h, before J^T n (N m)"),
 }
 
 
@@ -92,23 +95,40 @@ def _add_hybrid_controller(builder, scenario, plant, measured):
     }
 
 
+def _add_nn_controller(builder, scenario, plant, measured):
+    """The hybrid part plus the 9-12-3 compensator: tau = tau_h + J^T n."""
+    ports = _add_hybrid_controller(builder, scenario, plant, measured)
+    hybrid = scenario.controller.hybrid
+    compensator = builder.AddNamedSystem(
+        "nn_compensator",
+        NnCompensator(scenario.controller.nn, hybrid.y_desired, hybrid.phi_desired))
+    builder.Connect(measured["tip_pose"], compensator.GetInputPort("tip_pose"))
+    builder.Connect(measured["joint_positions"], compensator.GetInputPort("joint_positions"))
+    builder.Connect(measured["force_filtered"], compensator.GetInputPort("force"))
+    builder.Connect(ports["force_desired"], compensator.GetInputPort("force_desired"))
+    builder.Connect(ports["mode"], compensator.GetInputPort("mode"))
+    builder.Connect(ports["joint_torque_commanded"], compensator.GetInputPort("hybrid_torque"))
+    total = builder.AddNamedSystem("nn_torque_sum", Adder(2, 3))
+    builder.Connect(ports["joint_torque_commanded"], total.get_input_port(0))
+    builder.Connect(compensator.GetOutputPort("joint_torque"), total.get_input_port(1))
+    ports["hybrid_torque"] = ports["joint_torque_commanded"]
+    ports["joint_torque_commanded"] = total.get_output_port()
+    ports["nn_output"] = compensator.GetOutputPort("nn_output")
+    return ports
+
+
 #: controller.name -> adder(builder, scenario, plant, measured ports) returning
 #: a dict of its output ports, at least joint_torque_commanded.
 CONTROLLER_ADDERS = {
     "push": _add_push_controller,
     "hybrid": _add_hybrid_controller,
+    "nn": _add_nn_controller,
 }
 
 
-def MakeContactDiagram(scenario: Scenario, *, meshcat=None):
-    """The arm, its joint physics, the wall and the scenario's controller.
-
-    Returns a Diagram named ``contact_diagram`` exporting the outputs listed in
-    :data:`EXPORTED_OUTPUTS`. Raises ScenarioError for settings that cannot
-    run (e.g. friction regularization unstable at the plant step).
-    """
-    scenario.validate()
-    builder = DiagramBuilder()
+def _add_arm_and_wall(builder, scenario):
+    """The plant, its tip kinematics, the wall and the joint friction, wired;
+    returns (plant, scene_graph, tip, wall, friction torque port)."""
     plant, scene_graph = AddArmPlant(builder, scenario.arm)
     state_port = plant.get_state_output_port()
     joint_inertias = np.diag(plant.CalcMassMatrix(plant.CreateDefaultContext()))
@@ -129,6 +149,35 @@ def MakeContactDiagram(scenario: Scenario, *, meshcat=None):
     builder.Connect(tip.GetOutputPort("generalized_force"), external.get_input_port(0))
     builder.Connect(friction_out, external.get_input_port(1))
     builder.Connect(external.get_output_port(), plant.get_applied_generalized_force_input_port())
+    return plant, scene_graph, tip, wall, friction_out
+
+
+def MakeFloorDiagram(scenario: Scenario, joint_torque=(4.0, 0.0, 0.0)):
+    """The speed floor: the plant, the wall and the joint physics only, with a
+    constant motor torque (N m) and no sensors or controller. Exports
+    ``contact_force_true``."""
+    scenario.validate()
+    builder = DiagramBuilder()
+    plant, _, _, wall, _ = _add_arm_and_wall(builder, scenario)
+    torque = builder.AddNamedSystem("joint_torque", ConstantVectorSource(list(joint_torque)))
+    builder.Connect(torque.get_output_port(), plant.get_actuation_input_port())
+    builder.ExportOutput(wall.GetOutputPort("contact_force"), "contact_force_true")
+    diagram = builder.Build()
+    diagram.set_name("floor_diagram")
+    return diagram
+
+
+def MakeContactDiagram(scenario: Scenario, *, meshcat=None):
+    """The arm, its joint physics, the wall and the scenario's controller.
+
+    Returns a Diagram named ``contact_diagram`` exporting the outputs listed in
+    :data:`EXPORTED_OUTPUTS`. Raises ScenarioError for settings that cannot
+    run (e.g. friction regularization unstable at the plant step).
+    """
+    scenario.validate()
+    builder = DiagramBuilder()
+    plant, scene_graph, tip, wall, friction_out = _add_arm_and_wall(builder, scenario)
+    state_port = plant.get_state_output_port()
 
     encoders_in, encoders_out = AddEncoders(
         builder, scenario.encoders, scenario.arm.initial_positions)

@@ -25,6 +25,7 @@ from drake_contact.force_sensor import ForceSensorConfig
 from drake_contact.hybrid_controller import HybridControllerConfig
 from drake_contact.identification import IdentifierConfig, validate_identifiers
 from drake_contact.errors import ScenarioError
+from drake_contact.nn_compensator import NnCompensatorConfig
 from drake_contact.joint_physics import (
     THESIS_TORQUE_LIMITS, EncoderConfig, JointFrictionConfig)
 from drake_contact.push_controller import PushConfig
@@ -50,7 +51,7 @@ def _yaml_load(text):
 
 
 #: Controllers a scenario can name in ``controller.name``.
-CONTROLLER_NAMES = ("push", "hybrid")
+CONTROLLER_NAMES = ("push", "hybrid", "nn")
 
 
 @dc.dataclass
@@ -63,12 +64,16 @@ class ControllerConfig:
     push: PushConfig = dc.field(default_factory=PushConfig)
     # The thesis's approach, 5 N switch and hybrid control (name: hybrid).
     hybrid: HybridControllerConfig = dc.field(default_factory=HybridControllerConfig)
+    # The neural-network compensator added to ``hybrid`` (name: nn, section 4.5).
+    nn: NnCompensatorConfig = dc.field(default_factory=NnCompensatorConfig)
 
     def validate(self, prefix="controller"):
         if self.name not in CONTROLLER_NAMES:
             raise ScenarioError(
                 f"{prefix}.name = '{self.name}' is unknown: choose one of "
                 f"{', '.join(CONTROLLER_NAMES)}")
+        if self.name == "nn":
+            self.hybrid.validate(f"{prefix}.hybrid")
         getattr(self, self.name).validate(f"{prefix}.{self.name}")
 
 
@@ -82,6 +87,11 @@ class ScoringConfig:
     window_end_s: float = 0.0
     # The switch's impact is the peak force within this time after it (s).
     impact_window_s: float = 0.5
+    # force_rmse_windows_n: RMSE per window of this length from the switch (s).
+    rmse_window_s: float = 5.0
+    # adaptation_time_s: from the switch to the end of the first window of
+    # rmse_window_s (sliding by 0.5 s) whose force RMSE is below this (N).
+    adaptation_rmse_n: float = 1.5
 
     def validate(self, prefix="scoring"):
         if not (self.window_start_s >= 0):
@@ -90,6 +100,12 @@ class ScoringConfig:
         if self.window_end_s != 0 and not (self.window_end_s > self.window_start_s):
             raise ScenarioError(f"{prefix}.window_end_s = {self.window_end_s} is out of range: "
                                 f"must be 0 (to the end) or > window_start_s")
+        if not (self.rmse_window_s > 0):
+            raise ScenarioError(f"{prefix}.rmse_window_s = {self.rmse_window_s} is out of "
+                                "range: must be > 0 s")
+        if not (self.adaptation_rmse_n > 0):
+            raise ScenarioError(f"{prefix}.adaptation_rmse_n = {self.adaptation_rmse_n} is out "
+                                "of range: must be > 0 N")
         if not (self.impact_window_s > 0):
             raise ScenarioError(f"{prefix}.impact_window_s = {self.impact_window_s} is out of "
                                 "range: must be > 0 s")
@@ -129,6 +145,8 @@ class Scenario:
 
     # What this scenario shows (free text).
     description: str = ""
+    # The thesis figures it reproduces, e.g. "6.11, 6.15" (titles and file names).
+    thesis_figures: str = ""
     simulation: SimulationConfig = dc.field(default_factory=SimulationConfig)
     arm: ArmConfig = dc.field(default_factory=ArmConfig)
     joint_friction: JointFrictionConfig = dc.field(default_factory=JointFrictionConfig)
@@ -162,9 +180,9 @@ class Scenario:
         self.controller.validate()
         self.force_reference.validate()
         validate_identifiers(self.identifiers)
-        if self.identifiers and self.controller.name != "hybrid":
-            raise ScenarioError("identifiers need controller.name = 'hybrid' (they start at "
-                                "its contact switch)")
+        if self.identifiers and self.controller.name not in ("hybrid", "nn"):
+            raise ScenarioError("identifiers need controller.name = 'hybrid' or 'nn' (they "
+                                "start at its contact switch)")
         source = self.controller.hybrid.stiffness_source
         if source and source not in {c.name for c in self.identifiers}:
             raise ScenarioError(f"controller.hybrid.stiffness_source = '{source}' names no "

@@ -1,0 +1,183 @@
+"""The 9-12-3 compensator: Appendix E's weights, the forward pass and one
+back-propagation step by hand, the gradient by finite differences, and the
+system's one sample (learning only in contact, J^T n, context copies)."""
+
+import dataclasses as dc
+
+import numpy as np
+import pytest
+from pydrake.systems.framework import DiagramBuilder
+
+from drake_contact.arm import THESIS_Q0
+from drake_contact.controller_model import ArmModel, ControllerModelConfig
+from drake_contact.errors import ScenarioError
+from drake_contact.nn_compensator import (
+    CompensatorNetwork, NnCompensator, NnCompensatorConfig, load_initial_weights)
+
+INPUTS = np.array([0.4561, 2e-4, -1e-3, 0.4560, 1.9e-4, -0.9e-3, 3.1, -0.4, 0.02])
+
+
+def test_initial_weights_are_appendix_e():
+    W, V = load_initial_weights(NnCompensatorConfig().initial_weights)
+    assert W.shape == (10, 12) and V.shape == (13, 3)
+    # Spot checks against the thesis's listing: w01, w3x1 (input 3 ->
+    # hidden 11), v01, vx23 (hidden 12 -> output 3).
+    assert W[0, 0] == -1.000e-03
+    assert W[3, 10] == 1.404e-03
+    assert V[0, 0] == -1.050e-03
+    assert V[12, 2] == 8.905e-03
+
+
+def _hand_forward(W, V, u, text=True):
+    """The forward pass written out neuron by neuron."""
+    offsets = [0.0, 0.01, 0.01, 0.0, 0.01, 0.01, 0.0, 0.0, 0.0]
+    u = [u[i] + offsets[i] for i in range(9)]
+    h = [W[0, j] + sum(W[i + 1, j] * u[i] for i in range(9)) for j in range(12)]
+    s = [2.0 / (1.0 + np.exp(-hj)) - 1.0 for hj in h]
+    act = s if text else h
+    o = [V[0, k] + sum(V[j + 1, k] * act[j] for j in range(12)) for k in range(3)]
+    R = [20.0, 10.0, 1.0]
+    return [R[k] * (2.0 / (1.0 + np.exp(-o[k])) - 1.0) for k in range(3)], u, h, s, o
+
+
+@pytest.mark.parametrize("layer", ["text", "appendix_e"])
+def test_forward_pass_equals_a_hand_computation(layer):
+    config = NnCompensatorConfig(output_layer=layer)
+    net = CompensatorNetwork(config)
+    W, V = load_initial_weights(config.initial_weights)
+    n, _ = net.forward(CompensatorNetwork.pack(W, V), INPUTS)
+    expected = _hand_forward(W, V, INPUTS, text=layer == "text")[0]
+    np.testing.assert_allclose(n, expected, rtol=1e-12)
+
+
+def test_one_backprop_step_equals_a_hand_computation():
+    """The code's update (Appendix E lines 2113-2346), written out."""
+    eta = 5e-5
+    net = CompensatorNetwork(NnCompensatorConfig(learning_rate=eta))
+    W, V = load_initial_weights(NnCompensatorConfig().initial_weights)
+    error = np.array([4.0, -1e-3, 2e-3])
+    new, n = net.train(CompensatorNetwork.pack(W, V), INPUTS, error)
+    W_new, V_new = CompensatorNetwork.unpack(new)
+
+    n_hand, u, h, s, o = _hand_forward(W, V, INPUTS)
+    np.testing.assert_allclose(n, n_hand, rtol=1e-12)
+    R = [20.0, 10.0, 1.0]
+    # Slopes as the code writes them (st1d, sh1d): d n_k/d o_k and d sigma/d h.
+    slope_o = [R[k] * 2 * np.exp(-o[k]) / (1 + np.exp(-o[k])) ** 2 for k in range(3)]
+    slope_h = [2 * np.exp(-hj) / (1 + np.exp(-hj)) ** 2 for hj in h]
+    delta = [error[k] * slope_o[k] for k in range(3)]
+    for j in range(13):
+        act = 1.0 if j == 0 else s[j - 1]
+        for k in range(3):
+            assert V_new[j, k] == pytest.approx(V[j, k] + eta * delta[k] * act, rel=1e-12)
+    for j in range(12):
+        back = sum(delta[k] * V[j + 1, k] for k in range(3)) * slope_h[j]
+        for i in range(10):
+            ui = 1.0 if i == 0 else u[i - 1]
+            assert W_new[i, j] == pytest.approx(W[i, j] + eta * back * ui, rel=1e-10, abs=1e-18)
+
+
+def test_gradient_matches_finite_differences():
+    """The step is -eta dE/dw for E = 1/2 |target - n|^2 (plant Jacobian +1),
+    checked on random weights large enough to leave the linear region."""
+    eta = 1e-4
+    net = CompensatorNetwork(NnCompensatorConfig(learning_rate=eta))
+    w = np.random.default_rng(0).normal(0, 0.3, CompensatorNetwork.size)
+    u = INPUTS * np.array([1, 100, 100, 1, 100, 100, 0.3, 1, 10])
+    target = np.array([5.0, -2.0, 0.3])
+    n0 = net.forward(w, u)[0]
+
+    def loss(weights):
+        return 0.5 * np.sum((target - net.forward(weights, u)[0]) ** 2)
+
+    new, _ = net.train(w, u, target - n0)
+    grad = (w - new) / eta
+    eps = 1e-6
+    fd = np.array([(loss(w + eps * e) - loss(w - eps * e)) / (2 * eps)
+                   for e in np.eye(len(w))])
+    np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-8)
+
+
+def _system_context(config, mode, force, force_desired=20.0):
+    system = NnCompensator(config)
+    context = system.CreateDefaultContext()
+    q = np.array(THESIS_Q0)
+    pose = np.array([0.456, 1e-3, -2e-3])
+    system.GetInputPort("tip_pose").FixValue(context, pose)
+    system.GetInputPort("joint_positions").FixValue(context, q)
+    system.GetInputPort("hybrid_torque").FixValue(context, INPUTS[6:])
+    system.GetInputPort("force").FixValue(context, [force])
+    system.GetInputPort("force_desired").FixValue(context, [force_desired])
+    system.GetInputPort("mode").FixValue(context, [mode])
+    return system, context, q, pose
+
+
+def test_system_sample_in_contact_learns_and_outputs_jt_n():
+    config = NnCompensatorConfig(learning_rate=5e-5)
+    system, context, q, pose = _system_context(config, mode=1, force=15.0)
+    weights = context.get_discrete_state(0).value().copy()
+    # The previous pose is the state (zero at start); the inputs use it.
+    update = system.EvalUniquePeriodicDiscreteUpdate(context)
+    net = CompensatorNetwork(config)
+    inputs = np.concatenate([pose, np.zeros(3), INPUTS[6:]])
+    expected_weights, n = net.train(weights, inputs, np.array([5.0, -1e-3, 2e-3]))
+    np.testing.assert_allclose(update.get_vector(0).value(), expected_weights, rtol=1e-12)
+    np.testing.assert_allclose(update.get_vector(1).value(), pose)   # next previous pose
+    J = ArmModel(ControllerModelConfig()).evaluate(q, np.zeros(3))[1]
+    np.testing.assert_allclose(update.get_vector(2).value(), J.T @ n, rtol=1e-9)
+    np.testing.assert_allclose(update.get_vector(3).value(), n)
+
+
+def test_system_is_silent_and_does_not_learn_in_approach():
+    system, context, _, pose = _system_context(NnCompensatorConfig(), mode=0, force=2.0)
+    weights = context.get_discrete_state(0).value().copy()
+    update = system.EvalUniquePeriodicDiscreteUpdate(context)
+    np.testing.assert_array_equal(update.get_vector(0).value(), weights)
+    np.testing.assert_array_equal(update.get_vector(2).value(), np.zeros(3))
+    np.testing.assert_array_equal(update.get_vector(1).value(), pose)
+
+
+def test_learning_off_keeps_the_weights_and_still_compensates():
+    config = NnCompensatorConfig(learning=False)
+    system, context, _, _ = _system_context(config, mode=1, force=15.0)
+    weights = context.get_discrete_state(0).value().copy()
+    update = system.EvalUniquePeriodicDiscreteUpdate(context)
+    np.testing.assert_array_equal(update.get_vector(0).value(), weights)
+    assert np.any(update.get_vector(3).value() != 0)
+
+
+def test_a_copied_context_carries_what_was_learned():
+    system, context, _, _ = _system_context(NnCompensatorConfig(), mode=1, force=10.0)
+    context.SetDiscreteState(system.EvalUniquePeriodicDiscreteUpdate(context))
+    copy = context.Clone()
+    np.testing.assert_array_equal(copy.get_discrete_state(0).value(),
+                                  context.get_discrete_state(0).value())
+    assert system.EvalUniquePeriodicDiscreteUpdate(copy).get_vector(0).value()[0] == \
+        system.EvalUniquePeriodicDiscreteUpdate(context).get_vector(0).value()[0]
+
+
+@pytest.mark.parametrize("change,field", [
+    ({"learning_rate": -1e-5}, "controller.nn.learning_rate"),
+    ({"output_layer": "hidden"}, "controller.nn.output_layer"),
+    ({"output_half_ranges": [20.0, 10.0]}, "controller.nn.output_half_ranges"),
+    ({"initial_weights": "nn/missing.yaml"}, "controller.nn.initial_weights"),
+])
+def test_bad_settings_name_the_field(change, field):
+    with pytest.raises(ScenarioError, match=field.replace(".", r"\.")):
+        dc.replace(NnCompensatorConfig(), **change).validate()
+
+
+def test_malformed_weights_file_is_refused(tmp_path):
+    bad = tmp_path / "weights.yaml"
+    bad.write_text("input_to_hidden: [[1, 2], [3, 4]]\nhidden_to_output: [[1, 2, 3]]\n")
+    with pytest.raises(ScenarioError, match=r"must be \(10, 12\) and \(13, 3\)"):
+        load_initial_weights(str(bad))
+
+
+def test_nn_diagram_builds_and_logs_the_compensator():
+    """The nn controller wires tau_h + J^T n; before contact n is zero."""
+    from drake_contact.diagram import MakeContactDiagram
+    from drake_contact.scenario import load_scenario
+    builder = DiagramBuilder()
+    diagram = builder.AddSystem(MakeContactDiagram(load_scenario("nn_styrofoam")))
+    assert diagram.HasOutputPort("nn_output") and diagram.HasOutputPort("hybrid_torque")
