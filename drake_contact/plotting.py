@@ -100,9 +100,16 @@ def plot_sensor_figures(log: dict, scenario, out_dir) -> list[Path]:
     return paths
 
 
-def plot_contact_figures(log: dict, scenario, out_dir) -> list[Path]:
-    """Fig 4.2 (the force through the 5 N switch) and the force tracking
-    against f_d with y and phi (Figs 6.10, 6.15), for runs with a mode log."""
+def _figure_label(scenario, default):
+    """("6.11, 6.15", "6_11") from the scenario's thesis_figures."""
+    label = scenario.thesis_figures or default
+    return label, label.split(",")[0].strip().replace(".", "_")
+
+
+def plot_contact_figures(log: dict, scenario, out_dir, *, baseline_log=None) -> list[Path]:
+    """Fig 4.2 (the force through the 5 N switch); the force tracking against
+    f_d with y and phi errors (Figs 6.10-6.17), with the hybrid part alone on
+    the same axes when ``baseline_log`` is given; the compensator's output."""
     if "mode" not in log or not np.any(log["mode"] > 0):
         return []
     out_dir = Path(out_dir)
@@ -122,16 +129,37 @@ def plot_contact_figures(log: dict, scenario, out_dir) -> list[Path]:
     ax.set_title("Fig 4.2: force from position control to hybrid control")
     paths.append(_save(fig, ax, out_dir / "fig4_2_switch.png"))
 
+    label, stem = _figure_label(scenario, "6.10, 6.15")
+    fig, axes = plt.subplots(3, 1, figsize=(9, 7.5), sharex=True)
+    runs = [("neural controller" if baseline_log is not None else "true force", log, "k")]
+    if baseline_log is not None and np.any(baseline_log["mode"] > 0):
+        runs.append(("hybrid part alone", baseline_log, "tab:orange"))
+    for name, run_log, colour in reversed(runs):
+        rt = run_log["t"]
+        rc = rt[np.argmax(run_log["mode"] > 0)]
+        after = rt >= rc - 0.5
+        axes[0].plot(rt[after] - rc, run_log["contact_force_true"][after], color=colour, lw=0.9,
+                     label=name)
+        axes[1].plot(rt[after] - rc, run_log["tip_pose_true"][after, 1] * 1e3, color=colour,
+                     lw=0.9, label=name)
+        axes[2].plot(rt[after] - rc, run_log["tip_pose_true"][after, 2] * 1e3, color=colour,
+                     lw=0.9, label=name)
     after = t >= t_c - 0.5
-    fig, axes = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
     axes[0].plot(t[after] - t_c, log["force_desired"][after], "r--", lw=1, label="desired")
-    axes[0].plot(t[after] - t_c, log["contact_force_true"][after], "k", lw=1, label="true")
-    axes[0].set_ylabel("force (N)")
-    axes[1].plot(t[after] - t_c, log["tip_pose_true"][after, 1] * 1e3)
+    axes[0].set_ylabel("true normal force (N)")
     axes[1].set_ylabel("y error (mm)")
-    axes[2].plot(t[after] - t_c, log["tip_pose_true"][after, 2] * 1e3)
     axes[2].set_ylabel("phi error (mrad)")
     axes[2].set_xlabel("time from the first contact (s)")
-    fig.suptitle(f"Fig 6.10/6.15: force tracking, {scenario.description}", fontsize=9)
-    paths.append(_save(fig, axes, out_dir / "fig6_10_force_tracking.png"))
+    fig.suptitle(f"Fig {label}: force tracking; {scenario.description}", fontsize=9)
+    paths.append(_save(fig, axes, out_dir / f"fig{stem}_force_tracking.png"))
+
+    if "nn_output" in log:
+        fig, axes = plt.subplots(3, 1, figsize=(8, 6), sharex=True)
+        for k, (name, unit) in enumerate([("n_x", "N"), ("n_y", "N"), ("n_phi", "N m")]):
+            axes[k].plot(t[after] - t_c, log["nn_output"][after, k], lw=0.8)
+            axes[k].set_ylabel(f"{name} ({unit})")
+        axes[2].set_xlabel("time from the first contact (s)")
+        fig.suptitle(f"Fig {label}: the compensator's output n (J^T n is added to tau_h)",
+                     fontsize=9)
+        paths.append(_save(fig, axes, out_dir / f"fig{stem}_nn_output.png", legend=False))
     return paths

@@ -13,6 +13,7 @@ A run that diverges (non-finite state, or a contact force above
 these up to the last logged sample; ``metrics.json`` says why it stopped.
 """
 
+import copy
 import dataclasses as dc
 import json
 import sys
@@ -58,6 +59,8 @@ LOG_SIGNALS = {
     "mode": ("mode", 0),
     "force_desired": ("force_desired", 0),
     "contact_info": ("contact_info", slice(0, 4)),
+    "nn_output": ("nn_output", slice(0, 3)),
+    "hybrid_torque": ("hybrid_torque", slice(0, 3)),
 }
 
 #: Exported ports logged under their own name when the scenario has them
@@ -268,12 +271,55 @@ def tracking_metrics(log: dict, scenario: Scenario) -> dict:
             "phi_max_abs_error_rad": float(np.max(np.abs(log["tip_pose_true"][window, 2]
                                                          - hybrid.phi_desired))),
         })
+    out.update(adaptation_metrics(log, t_contact, s))
     return out
 
 
-def run(scenario: Scenario, out_dir, *, progress=None, figures=True) -> RunResult:
+#: adaptation_time_s slides its window by this much (s).
+ADAPTATION_STEP_S = 0.5
+
+
+def adaptation_metrics(log: dict, t_contact: float, scoring) -> dict:
+    """Force RMSE (true force vs f_d) per ``rmse_window_s`` window from the
+    switch, and the time from the switch to the end of the first sliding
+    window whose RMSE is below ``adaptation_rmse_n`` (None if none is)."""
+    t = log["t"]
+    error = log["contact_force_true"] - log["force_desired"]
+    width = scoring.rmse_window_s
+
+    def rmse(start):
+        window = (t >= t_contact + start - 1e-9) & (t < t_contact + start + width - 1e-9)
+        return float(np.sqrt(np.mean(error[window] ** 2)))
+
+    span = t[-1] + CONTROL_PERIOD - t_contact  # logged time after the switch
+    whole = int(np.floor(span / width + 1e-9))
+    windows = [rmse(k * width) for k in range(whole)]
+    adaptation = None
+    for k in range(int(np.floor((span - width) / ADAPTATION_STEP_S + 1e-9)) + 1):
+        if rmse(k * ADAPTATION_STEP_S) < scoring.adaptation_rmse_n:
+            adaptation = k * ADAPTATION_STEP_S + width
+            break
+    return {"force_rmse_windows_n": windows, "adaptation_time_s": adaptation}
+
+
+def baseline_scenario(scenario: Scenario) -> Scenario:
+    """The hybrid part alone of a neural-controller scenario: the same arm,
+    environment, seed and gains with the compensator removed (Fig 6.10)."""
+    baseline = copy.deepcopy(scenario)
+    baseline.controller.name = "hybrid"
+    baseline.description = f"hybrid part alone of: {scenario.description}"
+    return baseline
+
+
+def run(scenario: Scenario, out_dir, *, progress=None, figures=True,
+        baseline=None) -> RunResult:
     """Simulates ``scenario`` and writes scenario.yaml, log.npz, metrics.json
-    and figures into ``out_dir`` (created if needed)."""
+    and figures into ``out_dir`` (created if needed).
+
+    ``baseline`` (default: with figures, for the neural controller) also runs
+    :func:`baseline_scenario` into ``out_dir/baseline``, adds its force RMSE
+    to the metrics as ``baseline_*`` and draws both runs on the same axes.
+    """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "scenario.yaml").write_text(dump_scenario(scenario))
@@ -284,12 +330,23 @@ def run(scenario: Scenario, out_dir, *, progress=None, figures=True) -> RunResul
         metrics["message"] = message
     np.savez(out / "log.npz", **log)
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2, sort_keys=True) + "\n")
+    if baseline is None:
+        baseline = figures and scenario.controller.name == "nn"
+    baseline_log = None
+    if baseline and status == "completed":
+        base = run(baseline_scenario(scenario), out / "baseline", figures=False, baseline=False)
+        baseline_log = base.log
+        for key in ("force_rmse_n", "force_rmse_windows_n", "force_mean_abs_error_n",
+                    "adaptation_time_s"):
+            if key in base.metrics:
+                metrics[f"baseline_{key}"] = base.metrics[key]
+        (out / "metrics.json").write_text(json.dumps(metrics, indent=2, sort_keys=True) + "\n")
     if figures and len(log["t"]) > 1:
         from drake_contact.plotting import (
             plot_contact_figures, plot_main_signals, plot_sensor_figures)
         plot_main_signals(log, scenario, out)
         plot_sensor_figures(log, scenario, out)
-        plot_contact_figures(log, scenario, out)
+        plot_contact_figures(log, scenario, out, baseline_log=baseline_log)
     return RunResult(log=log, metrics=metrics, status=status, message=message)
 
 
