@@ -2,6 +2,7 @@
 
     drake-contact run SCENARIO --out DIR [--duration S] [--seed N] [--set k=v ...]
     drake-contact list
+    drake-contact bench [SCENARIO] [--duration S]
 
 Bad input exits with status 2 and one line naming the field and its allowed
 range; a diverged run exits with status 3 after writing its logs.
@@ -35,6 +36,10 @@ def _build_parser():
                      help="override a scenario field, e.g. environment.stiffness=6.2e4")
     run.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     commands.add_parser("list", help="list the bundled scenarios")
+    bench = commands.add_parser(
+        "bench", help="time the floor (plant, wall, joint physics) and a scenario; print the ratio")
+    bench.add_argument("scenario", nargs="?", default="nn_styrofoam")
+    bench.add_argument("--duration", type=float, help="simulated time of the scenario (s)")
     return parser
 
 
@@ -44,6 +49,13 @@ def _cmd_list(args):
     for name in bundled_scenario_names():
         description = load_scenario(name).description.strip().splitlines()
         print(f"{name:28s} {description[0] if description else ''}")
+    return 0
+
+
+def _cmd_bench(args):
+    from drake_contact.bench import bench
+    from drake_contact.scenario import load_scenario
+    bench(load_scenario(args.scenario, duration=args.duration))
     return 0
 
 
@@ -68,7 +80,7 @@ def _cmd_run(args):
 def main(argv=None) -> int:
     args = _build_parser().parse_args(argv)
     try:
-        return {"run": _cmd_run, "list": _cmd_list}[args.command](args)
+        return {"run": _cmd_run, "list": _cmd_list, "bench": _cmd_bench}[args.command](args)
     except ScenarioError as e:
         print(f"drake-contact: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
