@@ -91,6 +91,7 @@ def _add_hybrid_controller(builder, scenario, plant, measured):
         "joint_torque_commanded": controller.GetOutputPort("joint_torque_commanded"),
         "mode": controller.GetOutputPort("mode"),
         "contact_info": controller.GetOutputPort("contact_info"),
+        "tip_jacobian": controller.GetOutputPort("tip_jacobian"),
         "force_desired": reference.GetOutputPort("force_desired"),
     }
 
@@ -103,7 +104,7 @@ def _add_nn_controller(builder, scenario, plant, measured):
         "nn_compensator",
         NnCompensator(scenario.controller.nn, hybrid.y_desired, hybrid.phi_desired))
     builder.Connect(measured["tip_pose"], compensator.GetInputPort("tip_pose"))
-    builder.Connect(measured["joint_positions"], compensator.GetInputPort("joint_positions"))
+    builder.Connect(ports["tip_jacobian"], compensator.GetInputPort("tip_jacobian"))
     builder.Connect(measured["force_filtered"], compensator.GetInputPort("force"))
     builder.Connect(ports["force_desired"], compensator.GetInputPort("force_desired"))
     builder.Connect(ports["mode"], compensator.GetInputPort("mode"))

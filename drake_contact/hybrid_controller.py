@@ -131,6 +131,8 @@ class HybridController(LeafSystem):
       stiffness_estimate (1): k_e for the decoupled law (N/m).
     Output ports (state outputs, held between samples):
       joint_torque_commanded (3) (N m); mode (1): 0 approach, 1 contact;
+      tip_jacobian (9): this sample's J of [x, y, phi] w.r.t. q, row-major,
+        from the controller's model (for the compensator's J^T n);
       contact_info (4): [time of the first switch (s) or -1, x, y, phi at
         the latest switch] for the reference generator and identifiers.
     """
@@ -152,11 +154,13 @@ class HybridController(LeafSystem):
         self._tau_group = self.DeclareDiscreteState(3)
         self._mode_group = self.DeclareDiscreteState(1)
         self._info_group = self.DeclareDiscreteState([-1.0, 0.0, 0.0, 0.0])
+        self._jacobian_group = self.DeclareDiscreteState(9)
         self._internal = self.DeclareDiscreteState([0.0, config.approach.start_x, 0.0])
         self.DeclarePeriodicDiscreteUpdateEvent(CONTROL_PERIOD, CONTROL_SAMPLE_OFFSET, self._update)
         self.DeclareStateOutputPort("joint_torque_commanded", self._tau_group)
         self.DeclareStateOutputPort("mode", self._mode_group)
         self.DeclareStateOutputPort("contact_info", self._info_group)
+        self.DeclareStateOutputPort("tip_jacobian", self._jacobian_group)
 
     def _approach_target(self, timer):
         a = self._config.approach
@@ -217,4 +221,5 @@ class HybridController(LeafSystem):
         state.get_mutable_vector(self._tau_group).SetFromVector(self._model.command(tau))
         state.get_mutable_vector(self._mode_group).SetAtIndex(0, mode)
         state.get_mutable_vector(self._info_group).SetFromVector(info)
+        state.get_mutable_vector(self._jacobian_group).SetFromVector(J.ravel())
         state.get_mutable_vector(self._internal).SetFromVector([timer, x_d, error_sum])

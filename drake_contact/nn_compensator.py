@@ -38,16 +38,15 @@ import numpy as np
 import yaml
 from pydrake.systems.framework import LeafSystem
 
-from drake_contact.arm import CONTROL_PERIOD, CONTROL_SAMPLE_LEAD, MakeArmModel, TIP_FRAME
+from drake_contact.arm import CONTROL_PERIOD, CONTROL_SAMPLE_LEAD
 from drake_contact.errors import ScenarioError
 from drake_contact.resources import models_dir
-from drake_contact.tip_kinematics import CalcTipPoseAndJacobian
 
 INPUTS, HIDDEN, OUTPUTS = 9, 12, 3
 OUTPUT_LAYERS = ("text", "appendix_e")
 #: The compensator samples after the hybrid controller (which samples
 #: CONTROL_SAMPLE_LEAD before each plant step) and before the plant step, so
-#: it reads this sample's tau_h, as the thesis's code does.
+#: it reads this sample's tau_h and J, as the thesis's code does.
 COMPENSATOR_SAMPLE_OFFSET = CONTROL_PERIOD - CONTROL_SAMPLE_LEAD / 2
 
 
@@ -142,7 +141,7 @@ class CompensatorNetwork:
         forward pass; returns (new weights, n before the step)."""
         W, V = self.unpack(weights)
         n, (u1, h, s_h, o) = self.forward(weights, inputs)
-        delta = error * self.R * 0.5 * (1.0 - _sigma(o) ** 2)
+        delta = error * self.R * 0.5 * (1.0 - (n / self.R) ** 2)  # R sigma'(o)
         back = (V[1:] @ delta) * 0.5 * (1.0 - s_h ** 2)
         V_new = V + self.eta * np.outer(np.concatenate([[1.0], s_h]), delta)
         W_new = W + self.eta * np.outer(u1, back)
@@ -154,7 +153,8 @@ class NnCompensator(LeafSystem):
 
     Input ports:
       tip_pose (3): measured [x, y, phi] (m, rad);
-      joint_positions (3): estimated q (rad), for J;
+      tip_jacobian (9): J of [x, y, phi] w.r.t. q, row-major (the hybrid
+        controller's, this sample);
       hybrid_torque (3): the hybrid part's motor commands tau_h (N m);
       force (1): the DSP's filtered force (N); force_desired (1) (N);
       mode (1): the controller's mode (1 = contact).
@@ -171,11 +171,8 @@ class NnCompensator(LeafSystem):
         self._net = CompensatorNetwork(config)
         self._learning = config.learning and config.learning_rate > 0
         self._targets = np.array([y_desired, phi_desired])
-        self._plant = MakeArmModel()
-        self._plant_context = self._plant.CreateDefaultContext()
-        self._tip = self._plant.GetFrameByName(TIP_FRAME)
         self._pose = self.DeclareVectorInputPort("tip_pose", 3)
-        self._q = self.DeclareVectorInputPort("joint_positions", 3)
+        self._jacobian = self.DeclareVectorInputPort("tip_jacobian", 9)
         self._tau_h = self.DeclareVectorInputPort("hybrid_torque", 3)
         self._force = self.DeclareVectorInputPort("force", 1)
         self._force_desired = self.DeclareVectorInputPort("force_desired", 1)
@@ -208,7 +205,6 @@ class NnCompensator(LeafSystem):
             state.get_mutable_vector(self._weights).SetFromVector(new_weights)
         else:
             n = self._net.forward(weights, inputs)[0]
-        self._plant.SetPositions(self._plant_context, self._q.Eval(context))
-        J = CalcTipPoseAndJacobian(self._plant, self._plant_context, self._tip)[1]
+        J = self._jacobian.Eval(context).reshape(3, 3)
         state.get_mutable_vector(self._torque).SetFromVector(J.T @ n)
         state.get_mutable_vector(self._output).SetFromVector(n)

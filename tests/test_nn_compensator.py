@@ -104,7 +104,8 @@ def _system_context(config, mode, force, force_desired=20.0):
     q = np.array(THESIS_Q0)
     pose = np.array([0.456, 1e-3, -2e-3])
     system.GetInputPort("tip_pose").FixValue(context, pose)
-    system.GetInputPort("joint_positions").FixValue(context, q)
+    J = ArmModel(ControllerModelConfig()).evaluate(q, np.zeros(3))[1]
+    system.GetInputPort("tip_jacobian").FixValue(context, J.ravel())
     system.GetInputPort("hybrid_torque").FixValue(context, INPUTS[6:])
     system.GetInputPort("force").FixValue(context, [force])
     system.GetInputPort("force_desired").FixValue(context, [force_desired])
