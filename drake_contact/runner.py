@@ -329,7 +329,6 @@ def run(scenario: Scenario, out_dir, *, progress=None, figures=True,
     if message:
         metrics["message"] = message
     np.savez(out / "log.npz", **log)
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2, sort_keys=True) + "\n")
     if baseline is None:
         baseline = figures and scenario.controller.name == "nn"
     baseline_log = None
@@ -340,7 +339,7 @@ def run(scenario: Scenario, out_dir, *, progress=None, figures=True,
                     "adaptation_time_s"):
             if key in base.metrics:
                 metrics[f"baseline_{key}"] = base.metrics[key]
-        (out / "metrics.json").write_text(json.dumps(metrics, indent=2, sort_keys=True) + "\n")
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2, sort_keys=True) + "\n")
     if figures and len(log["t"]) > 1:
         from drake_contact.plotting import (
             plot_contact_figures, plot_main_signals, plot_sensor_figures)
