@@ -29,6 +29,21 @@ def test_identification_runs_hold_20_n_with_small_position_errors(tmp_path, name
     assert m["y_max_abs_error_m"] < 1e-3
     assert m["phi_max_abs_error_rad"] < 5e-3
     assert m["impact_peak_force_n"] <= 2 * 20.0
+    if not overrides:
+        _check_rls_offset_form_removes_the_switch_point_bias(scenario, m)
+
+
+def _check_rls_offset_form_removes_the_switch_point_bias(scenario, m):
+    """The thesis's RLS form is biased by the 5 N switch point (+20-30 %);
+    the force-offset form removes it. Issue 5 asks for 5 % within 0.2 s; at
+    seed 0 the offset form gives -7.2 % (styrofoam) and -2.3 % (rubber, in
+    0.04 s): the only excitation is the switch transient, so the noise
+    decides the last few percent. This checks 10 % until that is solved.
+    (Checked inside the identification runs above, not by running them twice.)"""
+    truth = scenario.environment.stiffness
+    assert abs(m["identified_impedance_rls_offset"]["stiffness"] / truth - 1) < 0.10
+    assert m["identified_impedance_rls"]["stiffness"] / truth - 1 > 0.1
+    assert m["stiffness_ratio_final_n_per_m"] / truth - 1 > 0.1  # f / x is biased alike
 
 
 @pytest.mark.parametrize("name", ["hybrid_p_only_styrofoam", "hybrid_p_only_rubber"])
@@ -40,21 +55,6 @@ def test_hybrid_part_alone_misses_the_square_wave(tmp_path, name):
     assert m["impact_peak_force_n"] <= 2 * 20.0
     for figure in ("fig4_2_switch.png", "fig6_10_force_tracking.png"):
         assert (tmp_path / figure).is_file()
-
-
-@pytest.mark.parametrize("name", ["identify_styrofoam", "identify_rubber"])
-def test_rls_in_closed_loop_offset_form_removes_the_switch_point_bias(tmp_path, name):
-    """The thesis's RLS form is biased by the 5 N switch point (+20-30 %);
-    the force-offset form removes it. Issue 5 asks for 5 % within 0.2 s; at
-    seed 0 the offset form gives -7.2 % (styrofoam) and -2.3 % (rubber, in
-    0.04 s): the only excitation is the switch transient, so the noise
-    decides the last few percent. This checks 10 % until that is solved."""
-    scenario = load_scenario(name)
-    m = run(scenario, tmp_path, figures=False).metrics
-    truth = scenario.environment.stiffness
-    assert abs(m["identified_impedance_rls_offset"]["stiffness"] / truth - 1) < 0.10
-    assert m["identified_impedance_rls"]["stiffness"] / truth - 1 > 0.1
-    assert m["stiffness_ratio_final_n_per_m"] / truth - 1 > 0.1  # f / x is biased alike
 
 
 NN = [
