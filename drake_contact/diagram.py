@@ -213,9 +213,8 @@ def MakeContactDiagram(scenario: Scenario, *, meshcat=None):
     torque = controller_ports["joint_torque_commanded"]
     identifier_ports = {}
     if scenario.identifiers:
-        identifier_ports = AddIdentifiers(builder, scenario.identifiers, measured,
-                                          controller_ports["contact_info"],
-                                          scenario.simulation.seed)
+        identifier_ports = AddIdentifiers(builder, scenario, measured,
+                                          controller_ports["contact_info"])
         source = scenario.controller.hybrid.stiffness_source
         if source:
             pick = builder.AddNamedSystem("stiffness_from_identifier",

@@ -86,8 +86,16 @@ def lifted_analog_filter_system(num, den, fine_period, ticks):
 
 def digital_filter_system(b, a, period, channels=1):
     """A discrete LinearSystem applying the digital filter b/a to each of
-    ``channels`` inputs (direct feedthrough b[0] u[n])."""
-    ss = signal.tf2ss(b, a)
+    ``channels`` inputs (direct feedthrough b[0] u[n]). b and a are in powers
+    of z^-1 (scipy.signal.lfilter's convention); leading zeros of b are pure
+    delays."""
+    n = max(len(b), len(a))
+    b = np.pad(np.asarray(b, dtype=float), (0, n - len(b)))
+    a = np.pad(np.asarray(a, dtype=float), (0, n - len(a)))
+    # In tf2ss's descending powers of z, equal lengths with leading zeros in b
+    # are a strictly proper filter: strip them there instead of letting scipy
+    # warn and strip them.
+    ss = signal.tf2ss(np.trim_zeros(b, "f"), a)
     return LinearSystem(*_block_diagonal([ss] * channels), period)
 
 

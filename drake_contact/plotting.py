@@ -11,7 +11,7 @@ import numpy as np  # noqa: E402
 
 def _save(fig, axes, path, *, legend=True) -> Path:
     """Grid (and legend) on every axis, tight layout, write the PNG, close."""
-    for ax in np.atleast_1d(axes):
+    for ax in np.ravel(axes):
         ax.grid(True, which="both", alpha=0.3)
         if legend and ax.get_legend_handles_labels()[0]:
             ax.legend(loc="best", fontsize=8)
@@ -162,4 +162,108 @@ def plot_contact_figures(log: dict, scenario, out_dir, *, baseline_log=None) -> 
         fig.suptitle(f"Fig {label}: the compensator's output n (J^T n is added to tau_h)",
                      fontsize=9)
         paths.append(_save(fig, axes, out_dir / f"fig{stem}_nn_output.png", legend=False))
+    paths.extend(plot_identification_figures(log, scenario, out_dir))
     return paths
+
+
+#: Line colours of the identifiers in one figure, in scenario order.
+_IDENTIFIER_COLOURS = ("tab:blue", "tab:green", "tab:purple", "tab:orange", "tab:brown")
+
+
+def plot_identification_figures(log: dict, scenario, out_dir) -> list[Path]:
+    """Figs 6.1-6.9: per thesis figure, six panels over the first 4 s after
+    the switch (force, displacement xe, f / xe, M_e, B_e, K_e), with every
+    identifier that names the figure and the ground truth dashed; then each
+    group's second figure: the whole run (RLS, Figs 6.2, 6.5) or the
+    network's output error f - f_hat (NN, Fig 6.8)."""
+    if not scenario.identifiers or "contact_info" not in log:
+        return []
+    info = log["contact_info"][:, 0]
+    if not np.any(info >= 0):
+        return []
+    out_dir = Path(out_dir)
+    t = log["t"]
+    t_c = info[-1]
+    groups = {}
+    for config in scenario.identifiers:
+        key = config.figures[0] if config.figures else f"_{config.name}"
+        groups.setdefault(key, []).append(config)
+    paths = []
+    for key, configs in groups.items():
+        label = key if not key.startswith("_") else ""
+        stem = f"fig{label.replace('.', '_')}" if label else f"identification{key}"
+        title = (f"Fig {label}: " if label else "") + \
+            f"identification ({', '.join(c.name for c in configs)}), {scenario.description}"
+        paths.append(_plot_identification(log, t, t_c, configs, 4.0, title,
+                                          out_dir / f"{stem}_identification.png"))
+        second = {c.figures[1] for c in configs if len(c.figures) > 1}
+        for number in sorted(second):
+            stem2 = f"fig{number.replace('.', '_')}"
+            if configs[0].kind == "rls":
+                paths.append(_plot_identification(
+                    log, t, t_c, configs, t[-1] - t_c,
+                    f"Fig {number}: identification over the whole run, {scenario.description}",
+                    out_dir / f"{stem2}_identification.png"))
+            else:
+                paths.append(_plot_network_error(log, t, t_c, configs, number, scenario,
+                                                 out_dir / f"{stem2}_nn_output_error.png"))
+    return paths
+
+
+def _plot_identification(log, t, t_c, configs, span_s, title, path) -> Path:
+    window = (t >= t_c - 0.05) & (t <= t_c + span_s)
+    tw = t[window] - t_c
+    truth = log["true_impedance"][window]
+    fig, axes = plt.subplots(3, 2, figsize=(11, 8), sharex=True)
+    ax = axes[0, 0]
+    ax.plot(tw, log["force_filtered"][window], lw=0.8, label="measured, filtered")
+    ax.plot(tw, log["contact_force_true"][window], "k--", lw=0.8, label="true")
+    ax.set_ylabel("force f (N)")
+    ax = axes[1, 0]
+    ax.plot(tw, log["displacement_measured"][window] * 1e3, lw=0.8,
+            label="xe measured (from the switch point)")
+    pen = log["penetration_true"]
+    ax.plot(tw, (pen[window] - pen[np.argmax(t >= t_c)]) * 1e3, "k--", lw=0.8,
+            label="true, from the switch point")
+    ax.set_ylabel("displacement xe (mm)")
+    ax = axes[2, 0]
+    ax.plot(tw, log["stiffness_ratio"][window] / 1e3, lw=0.8, label="f / xe (measured)")
+    ax.plot(tw, truth[:, 2] / 1e3, "k--", lw=1, label="true K_e")
+    _clip_to_truth(ax, truth[:, 2] / 1e3)
+    ax.set_ylabel("f / xe (kN/m)")
+    ax.set_xlabel("time from the switch (s)")
+    units = [("M_e (kg)", 1.0, 0), ("B_e (N s/m)", 1.0, 1), ("K_e (kN/m)", 1e-3, 2)]
+    for row, (name, scale, k) in enumerate(units):
+        ax = axes[row, 1]
+        for colour, config in zip(_IDENTIFIER_COLOURS, configs):
+            est = log[f"impedance_{config.name}"][window, k] * scale
+            ax.plot(tw, est, color=colour, lw=0.9, label=config.name)
+        ax.plot(tw, truth[:, k] * scale, "k--", lw=1, label="truth")
+        if k == 2:
+            _clip_to_truth(ax, truth[:, k] * scale)
+        ax.set_ylabel(name)
+    axes[2, 1].set_xlabel("time from the switch (s)")
+    fig.suptitle(title, fontsize=9)
+    return _save(fig, axes, path)
+
+
+def _clip_to_truth(ax, truth):
+    """K_e and f / xe start far off (theta0 = 2e5 N/m, xe ~ 0): show 0 to
+    twice the truth."""
+    ax.set_ylim(0, 2 * float(np.max(truth)))
+
+
+def _plot_network_error(log, t, t_c, configs, number, scenario, path) -> Path:
+    window = (t >= t_c) & (t <= t_c + 4.0)
+    fig, ax = plt.subplots(figsize=(8, 4))
+    for colour, config in zip(_IDENTIFIER_COLOURS, configs):
+        estimate = log.get(f"force_estimate_{config.name}")
+        if estimate is None:
+            continue
+        ax.plot(t[window] - t_c, log["force_filtered"][window] - estimate[window], color=colour,
+                lw=0.8, label=config.name)
+    ax.set_xlabel("time from the switch (s)")
+    ax.set_ylabel("output error f - f_hat (N)")
+    ax.set_title(f"Fig {number}: error of the network's output, {scenario.description}",
+                 fontsize=9)
+    return _save(fig, ax, path)

@@ -25,7 +25,7 @@ def test_gradient_step_matches_finite_differences():
 def test_learns_a_linear_environment_and_probes_its_stiffness():
     """Train on f = K x + B v + M a with rich inputs; the probed K_e comes
     within 10 % (the network is not linear, only near the probe point)."""
-    config = NnIdentifierConfig(learning_rate=1e-3, probe_from_zero=True)
+    config = NnIdentifierConfig(learning_rate=1e-3)
     net = ImpedanceNetwork(config)
     w = net.initial_weights(0)
     rng = np.random.default_rng(1)
@@ -36,3 +36,37 @@ def test_learns_a_linear_environment_and_probes_its_stiffness():
     M_e, B_e, K_e = net.impedance(w)
     assert K_e == pytest.approx(K, rel=0.1)
     assert B_e == pytest.approx(B, rel=0.3)
+
+
+def _fixed_context(system, force, x, t_contact=1.0, x_switch=0.4):
+    context = system.CreateDefaultContext()
+    system.GetInputPort("force").FixValue(context, [force])
+    system.GetInputPort("tip_pose").FixValue(context, [x_switch + x[0], 0.0, 0.0])
+    system.GetInputPort("tip_velocity").FixValue(context, [x[1], 0.0, 0.0])
+    system.GetInputPort("tip_acceleration").FixValue(context, [x[2], 0.0, 0.0])
+    system.GetInputPort("contact_info").FixValue(context, [t_contact, x_switch, 0.0, 0.0])
+    return context
+
+
+@pytest.mark.parametrize("force_offset", [False, True])
+def test_system_step_trains_on_the_force_less_the_switch_force(force_offset):
+    """One 1 ms sample of the system equals one ImpedanceNetwork.train step on
+    f (the thesis) or on f - f_s (force_offset, f_s = the first force read);
+    nothing happens before the switch."""
+    from drake_contact.nn_identifier import NnIdentifier
+    config = NnIdentifierConfig(force_offset=force_offset)
+    system = NnIdentifier(config, seed=4)
+    net = ImpedanceNetwork(config)
+    x = np.array([1e-3, 0.01, 0.5])
+    context = _fixed_context(system, 12.0, x)
+    w0 = context.get_discrete_state(0).value().copy()
+    state = system.EvalUniquePeriodicDiscreteUpdate(context)
+    f_s = 12.0 if force_offset else 0.0
+    expected, f_hat = net.train(w0, x, 12.0 - f_s)
+    np.testing.assert_allclose(state.get_vector(0).value(), expected, rtol=1e-12)
+    np.testing.assert_allclose(state.get_vector(1).value(), net.impedance(expected), rtol=1e-12)
+    assert state.get_vector(2).value()[0] == pytest.approx(f_hat + f_s)
+    assert list(state.get_vector(3).value()) == [1.0, f_s]
+    before = _fixed_context(system, 12.0, x, t_contact=-1.0)
+    untouched = system.EvalUniquePeriodicDiscreteUpdate(before)
+    np.testing.assert_array_equal(untouched.get_vector(0).value(), w0)
