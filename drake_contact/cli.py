@@ -1,6 +1,7 @@
 """The ``drake-contact`` command (also ``python -m drake_contact``).
 
     drake-contact run SCENARIO --out DIR [--duration S] [--seed N] [--set k=v ...]
+                      [--meshcat [--realtime-rate R]] [--record FILE.html]
     drake-contact list
     drake-contact bench [SCENARIO] [--duration S]
 
@@ -35,6 +36,12 @@ def _build_parser():
     run.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                      help="override a scenario field, e.g. environment.stiffness=6.2e4")
     run.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    run.add_argument("--meshcat", action="store_true",
+                     help="show the arm, wall and contact force live in Meshcat (prints the URL)")
+    run.add_argument("--realtime-rate", type=float, default=1.0, metavar="R",
+                     help="with --meshcat: simulated s per wall s (default 1; 0 = unpaced)")
+    run.add_argument("--record", metavar="FILE",
+                     help="save a standalone HTML playback of the run (headless)")
     commands.add_parser("list", help="list the bundled scenarios")
     bench = commands.add_parser(
         "bench", help="time the floor (plant, wall, joint physics) and a scenario; print the ratio")
@@ -62,12 +69,24 @@ def _cmd_bench(args):
 def _cmd_run(args):
     from drake_contact.runner import run, terminal_progress
     from drake_contact.scenario import load_scenario
+    from drake_contact.visualization import check_record_path, new_meshcat
     scenario = load_scenario(args.scenario, args.set, duration=args.duration, seed=args.seed)
-    result = run(scenario, args.out, progress=terminal_progress(), figures=not args.no_figures)
+    if not args.realtime_rate >= 0:
+        raise ScenarioError(f"--realtime-rate = {args.realtime_rate} is out of range: must be >= 0")
+    meshcat = None
+    if args.record:
+        check_record_path(args.record)  # before a Meshcat URL is printed
+    if args.meshcat:
+        meshcat = new_meshcat()
+        print(f"Meshcat: {meshcat.web_url()}", flush=True)
+    result = run(scenario, args.out, progress=terminal_progress(), figures=not args.no_figures,
+                 meshcat=meshcat, record=args.record,
+                 realtime_rate=args.realtime_rate if args.meshcat else 0.0)
     m = result.metrics
     print(f"{result.status}: {m['simulated_time_s']:.3f} s simulated in {m['wall_time_s']:.2f} s "
           f"(real-time factor {m['realtime_factor']:.2f}, {m['us_per_step']:.1f} us/step); "
-          f"peak force {m['peak_force_n']:.4g} N; wrote {args.out}")
+          f"peak force {m['peak_force_n']:.4g} N; wrote {args.out}"
+          + (f" and {args.record}" if args.record else ""))
     if result.status == "diverged":
         print(f"drake-contact: {result.message}", file=sys.stderr)
         return EXIT_DIVERGED

@@ -174,6 +174,10 @@ def MakeContactDiagram(scenario: Scenario, *, meshcat=None):
     Returns a Diagram named ``contact_diagram`` exporting the outputs listed in
     :data:`EXPORTED_OUTPUTS`. Raises ScenarioError for settings that cannot
     run (e.g. friction regularization unstable at the plant step).
+
+    Given a ``meshcat``, also draws the arm, the wall and the contact force
+    there (:mod:`drake_contact.visualization`); without one, nothing is
+    added and a run pays nothing for visualization.
     """
     scenario.validate()
     builder = DiagramBuilder()
@@ -260,8 +264,12 @@ def MakeContactDiagram(scenario: Scenario, *, meshcat=None):
         builder.ExportOutput(port, name)
 
     if meshcat is not None:
-        from pydrake.geometry import MeshcatVisualizer
-        MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat)
+        from drake_contact.visualization import AddContactVisualization
+        AddContactVisualization(
+            builder, scene_graph, meshcat, tip_state=tip.GetOutputPort("tip_state"),
+            penetration=wall.GetOutputPort("penetration"),
+            contact_force=wall.GetOutputPort("contact_force"),
+            surface_x=scenario.environment.surface_x)
 
     diagram = builder.Build()
     diagram.set_name("contact_diagram")

@@ -33,6 +33,8 @@ from drake_contact.errors import SimulationDiverged
 from drake_contact.identification import add_stiffness_ratio, identification_metrics
 from drake_contact.scenario import Scenario, dump_scenario
 from drake_contact.spectra import sensor_metrics
+from drake_contact.visualization import (
+    check_record_path, finish_recording, new_meshcat, start_recording)
 
 #: log.npz key -> (exported output port, columns taken from it). Keys whose
 #: port the scenario's diagram does not export are left out of the log.
@@ -81,13 +83,25 @@ class RunResult:
     message: str = ""
 
 
-def simulate(scenario: Scenario, *, progress=None):
+def simulate(scenario: Scenario, *, progress=None, meshcat=None, record=None,
+             realtime_rate=0.0):
     """Simulates ``scenario``; returns (log dict, status, message, wall time).
 
     ``progress(t, duration, wall_s)`` is called after every chunk if given.
+    ``meshcat``: show the run live there (arm, wall, contact force; see
+    :mod:`drake_contact.visualization`). ``record``: write a standalone HTML
+    playback to this file (checked before simulating; a headless Meshcat is
+    made if none is given), also for a diverged or interrupted run.
+    ``realtime_rate`` > 0 paces the simulation (simulated s per wall s), for
+    watching live. Without ``meshcat`` and ``record`` nothing is drawn.
     """
+    live = meshcat is not None
+    if record is not None:
+        record = check_record_path(record)
+        if meshcat is None:
+            meshcat = new_meshcat()
     builder = DiagramBuilder()
-    station = builder.AddNamedSystem("station", MakeContactDiagram(scenario))
+    station = builder.AddNamedSystem("station", MakeContactDiagram(scenario, meshcat=meshcat))
     loggers = {}
     dynamic = [station.get_output_port(i).get_name() for i in range(station.num_output_ports())
                if station.get_output_port(i).get_name().startswith(DYNAMIC_LOG_PREFIXES)]
@@ -101,7 +115,11 @@ def simulate(scenario: Scenario, *, progress=None):
     diagram.set_name("run")
 
     simulator = Simulator(diagram)
+    simulator.set_target_realtime_rate(realtime_rate)
     context = simulator.get_mutable_context()
+    # Recording is on whenever something is drawn: a live browser can
+    # replay the run once it is sent at the end.
+    visualizers = start_recording(diagram, live=live) if meshcat is not None else []
     SeedRandomSources(diagram, context, scenario.simulation.seed)
     duration = scenario.simulation.duration
     force_limit = scenario.simulation.force_limit
@@ -127,6 +145,7 @@ def simulate(scenario: Scenario, *, progress=None):
         message = (f"simulation failed at t = {context.get_time():.3f} s: "
                    f"{str(e).splitlines()[0]}")
     wall_s = time.perf_counter() - start
+    finish_recording(visualizers, meshcat, record)
     log = _collect(loggers, context)
     if status == "diverged":
         log = _truncate_at_divergence(log, force_limit)
@@ -312,18 +331,23 @@ def baseline_scenario(scenario: Scenario) -> Scenario:
 
 
 def run(scenario: Scenario, out_dir, *, progress=None, figures=True,
-        baseline=None) -> RunResult:
+        baseline=None, meshcat=None, record=None, realtime_rate=0.0) -> RunResult:
     """Simulates ``scenario`` and writes scenario.yaml, log.npz, metrics.json
     and figures into ``out_dir`` (created if needed).
 
     ``baseline`` (default: with figures, for the neural controller) also runs
     :func:`baseline_scenario` into ``out_dir/baseline``, adds its force RMSE
     to the metrics as ``baseline_*`` and draws both runs on the same axes.
+    ``meshcat``, ``record`` (an HTML playback file) and ``realtime_rate``
+    are passed to :func:`simulate` (the baseline is not drawn).
     """
+    if record is not None:
+        check_record_path(record)  # before writing anything
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "scenario.yaml").write_text(dump_scenario(scenario))
-    log, status, message, wall_s = simulate(scenario, progress=progress)
+    log, status, message, wall_s = simulate(scenario, progress=progress, meshcat=meshcat,
+                                            record=record, realtime_rate=realtime_rate)
     metrics = compute_metrics(scenario, log, wall_s)
     metrics["status"] = status
     if message:
