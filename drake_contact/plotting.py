@@ -129,7 +129,12 @@ def plot_contact_figures(log: dict, scenario, out_dir, *, baseline_log=None) -> 
     ax.set_title("Fig 4.2: force from position control to hybrid control")
     paths.append(_save(fig, ax, out_dir / "fig4_2_switch.png"))
 
-    label, stem = _figure_label(scenario, "6.10, 6.15")
+    if scenario.identifiers:
+        # The identification runs' thesis figures are the six-panel ones.
+        label, stem = "", "force_tracking"
+    else:
+        label, stem = _figure_label(scenario, "6.10, 6.15")
+        label, stem = f"Fig {label}: ", f"fig{stem}_force_tracking"
     fig, axes = plt.subplots(3, 1, figsize=(9, 7.5), sharex=True)
     runs = [("neural controller" if baseline_log is not None else "true force", log, "k")]
     if baseline_log is not None and np.any(baseline_log["mode"] > 0):
@@ -150,8 +155,8 @@ def plot_contact_figures(log: dict, scenario, out_dir, *, baseline_log=None) -> 
     axes[1].set_ylabel("y error (mm)")
     axes[2].set_ylabel("phi error (mrad)")
     axes[2].set_xlabel("time from the first contact (s)")
-    fig.suptitle(f"Fig {label}: force tracking; {scenario.description}", fontsize=9)
-    paths.append(_save(fig, axes, out_dir / f"fig{stem}_force_tracking.png"))
+    fig.suptitle(f"{label}force tracking; {scenario.description}", fontsize=9)
+    paths.append(_save(fig, axes, out_dir / f"{stem}.png"))
 
     if "nn_output" in log:
         fig, axes = plt.subplots(3, 1, figsize=(8, 6), sharex=True)
@@ -159,9 +164,10 @@ def plot_contact_figures(log: dict, scenario, out_dir, *, baseline_log=None) -> 
             axes[k].plot(t[after] - t_c, log["nn_output"][after, k], lw=0.8)
             axes[k].set_ylabel(f"{name} ({unit})")
         axes[2].set_xlabel("time from the first contact (s)")
-        fig.suptitle(f"Fig {label}: the compensator's output n (J^T n is added to tau_h)",
+        fig.suptitle(f"{label}the compensator's output n (J^T n is added to tau_h)",
                      fontsize=9)
-        paths.append(_save(fig, axes, out_dir / f"fig{stem}_nn_output.png", legend=False))
+        paths.append(_save(fig, axes, out_dir / f"{stem.replace('force_tracking', 'nn_output')}.png",
+                           legend=False))
     paths.extend(plot_identification_figures(log, scenario, out_dir))
     return paths
 
