@@ -160,17 +160,18 @@ def SeedRandomSources(diagram, context, seed):
     would change the noise. Seeding each source by name keeps the same noise
     whatever controller or identifier a user wires in."""
     diagram.SetRandomContext(context, RandomGenerator(seed))
-    for system in _leaf_systems(diagram):
+    for system in leaf_systems(diagram):
         if isinstance(system, RandomSource):
             name_hash = zlib.crc32(system.GetSystemPathname().encode())
             system.SetRandomContext(system.GetMyMutableContextFromRoot(context),
                                     RandomGenerator((seed * 1_000_003 + name_hash) % 2**31))
 
 
-def _leaf_systems(diagram):
+def leaf_systems(diagram):
+    """Every leaf system of ``diagram``, depth first, in diagram order."""
     for system in diagram.GetSystems():
         if isinstance(system, Diagram):
-            yield from _leaf_systems(system)
+            yield from leaf_systems(system)
         else:
             yield system
 

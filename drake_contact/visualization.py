@@ -38,7 +38,7 @@ import numpy as np
 from pydrake.geometry import (
     Box, Cylinder, Meshcat, MeshcatCone, MeshcatVisualizer, MeshcatVisualizerParams, Rgba)
 from pydrake.math import RigidTransform, RollPitchYaw
-from pydrake.systems.framework import Diagram, LeafSystem
+from pydrake.systems.framework import LeafSystem
 
 from drake_contact.errors import ScenarioError
 
@@ -237,7 +237,8 @@ def start_recording(diagram, *, live: bool):
     the ContactVisualizer, which draws into the same Meshcat). ``live``:
     also send each frame to connected browsers while recording. Returns the
     MeshcatVisualizers (none if the diagram has no Meshcat)."""
-    visualizers = [s for s in _leaf_systems(diagram) if isinstance(s, MeshcatVisualizer)]
+    from drake_contact.runner import leaf_systems  # runner imports this module
+    visualizers = [s for s in leaf_systems(diagram) if isinstance(s, MeshcatVisualizer)]
     for visualizer in visualizers:
         visualizer.DeleteRecording()  # a reused Meshcat: drop an earlier run's frames
         visualizer.StartRecording(set_transforms_while_recording=live)
@@ -270,11 +271,3 @@ def record_playback(scenario, html_path, *, duration=None, meshcat=None):
         scenario.simulation.duration = float(duration)
     _, status, message, _ = simulate(scenario, meshcat=meshcat, record=html_path)
     return status, message
-
-
-def _leaf_systems(diagram):
-    for system in diagram.GetSystems():
-        if isinstance(system, Diagram):
-            yield from _leaf_systems(system)
-        else:
-            yield system
