@@ -34,7 +34,7 @@ def plot_main_signals(log: dict, scenario, out_dir) -> Path:
                  label="x - surface (mm)")
     axes[2].plot(t, pose[:, 1] * 1e3, label="y (mm)")
     axes[2].plot(t, pose[:, 2] * 1e3, label="phi (mrad)")
-    axes[2].set_ylabel("tip pose")
+    axes[2].set_ylabel("tip pose (mm, mrad)")
     for i in range(3):
         axes[3].plot(t, log["joint_torque_applied"][:, i], label=f"joint {i + 1}")
     axes[3].set_ylabel("applied torque (N m)")
