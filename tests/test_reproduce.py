@@ -79,13 +79,21 @@ def test_scoring_marks_missing_runs_as_not_run(tmp_path):
     assert "INTERRUPTED" in text and text.count("not run") >= len(RESULTS)
 
 
+def _default_sigint():
+    """A shell starts background jobs with SIGINT ignored, and an ignored
+    signal stays ignored across exec (CI may run the suite that way). A
+    terminal's Ctrl-C reaches a foreground process: give the child the
+    default disposition so Python turns SIGINT into KeyboardInterrupt."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_ctrl_c_leaves_logs_and_a_partial_report(tmp_path):
     """SIGINT to the whole process group, as a terminal's Ctrl-C: the running
     scenarios stop and write their logs, the report is written, exit 130."""
     process = subprocess.Popen(
         [sys.executable, "-m", "drake_contact", "reproduce", "--quick", "--out", str(tmp_path),
          "--jobs", "2"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-        start_new_session=True)
+        start_new_session=True, preexec_fn=_default_sigint)
     # Wait until the first two scenarios are simulating: they start at once;
     # importing drake and building the diagram take about 5 s, and in --quick
     # both run for more than 25 s.
