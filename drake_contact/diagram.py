@@ -1,4 +1,4 @@
-"""Builds the simulation diagram of one scenario.
+"""Builds the simulation diagram of one scenario: the contact station.
 
     controller --joint_torque_commanded--> torque_saturation --> motors --> plant.actuation
     plant.state --> tip_kinematics --tip_state--> wall --force_on_tip--+
@@ -6,76 +6,96 @@
     adder (J^T F_wall + tau_friction) --> plant.applied_generalized_force
     plant.state --> encoders (quantized q) --> estimator --> tip pose/velocity/acceleration
     wall.force_on_tip --> force_sensor (FS6-120A, analog on a 12 kHz grid) --> dsp --> force
+    estimator, dsp (MeasuredSignals) --> controller, identifiers
 
-Every signal a run logs is an exported output port of the diagram, named
-``<what>`` with units in :data:`EXPORTED_OUTPUTS`.
+:func:`MakeContactDiagram` returns a :class:`ContactStation`: a Drake Diagram
+whose exported output ports are its signals, each documented in
+``station.signals`` (name -> :class:`Signal`: size, meaning, and the log keys
+it is logged under). A new signal is one ``signals.export(...)`` line here.
 """
 
+import dataclasses as dc
+import zlib
+
 import numpy as np
-from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import Adder, ConstantVectorSource, MatrixGain
+from pydrake.common import RandomGenerator
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import Adder, ConstantVectorSource, MatrixGain, RandomSource
 
-from drake_contact.arm import CONTROL_PERIOD, AddArmPlant, MakeArmModel
-from drake_contact.compliant_wall import CompliantWall
-from drake_contact.dsp import AddDspForceInput
+from drake_contact.control.force_reference import ForceReference
+from drake_contact.control.hybrid_controller import HybridController
+from drake_contact.control.nn_compensator import NnCompensator
+from drake_contact.control.push_controller import ConstantForcePushController
 from drake_contact.errors import ScenarioError
-from drake_contact.estimator import AddKinematicEstimator
-from drake_contact.force_reference import ForceReference
-from drake_contact.force_sensor import AddForceSensor
-from drake_contact.hybrid_controller import HybridController
-from drake_contact.identification import AddIdentifiers
-from drake_contact.nn_compensator import NnCompensator
-from drake_contact.joint_physics import (
+from drake_contact.identification.identifiers import AddIdentifiers
+from drake_contact.measured import MeasuredSignals
+from drake_contact.plant.arm import CONTROL_PERIOD, AddArmPlant, MakeArmModel
+from drake_contact.plant.compliant_wall import CompliantWall
+from drake_contact.plant.joint_physics import (
     AddEncoders, AddJointFriction, AddTorqueSaturation, check_friction_stability)
-from drake_contact.push_controller import ConstantForcePushController
+from drake_contact.plant.tip_kinematics import TipKinematics
 from drake_contact.scenario import Scenario
-from drake_contact.tip_kinematics import TipKinematics
-
-#: Exported outputs of :func:`MakeContactDiagram`: name -> (size, meaning).
-EXPORTED_OUTPUTS = {
-    "joint_state_true": (6, "arm [q; v] (rad, rad/s)"),
-    "tip_state_true": (6, "tip [x, y, phi, xdot, ydot, phidot], world (m, rad, /s)"),
-    "contact_force_true": (1, "true normal force on the tip (N)"),
-    "penetration_true": (1, "true surface displacement xe (m)"),
-    "true_impedance": (3, "true [M_e, B_e, K_e] (kg, N s/m, N/m)"),
-    "joint_positions_measured": (3, "encoder-quantized q, zeroed at q0 (rad)"),
-    "joint_torque_commanded": (3, "controller's torque before saturation (N m)"),
-    "joint_torque_applied": (3, "motor torque into the plant: saturated, times the motor scale (N m)"),
-    "joint_friction_torque": (3, "Coulomb friction torque on the joints (N m)"),
-    "force_measured": (1, "DSP force after ADC, scale, sign and tare (N)"),
-    "force_filtered": (1, "force_measured through the 120 Hz Butterworth (N)"),
-    "tip_pose_measured": (3, "estimated tip [x, y, phi] from encoders (m, rad)"),
-    "tip_velocity_measured": (3, "estimated tip velocity (m/s, rad/s)"),
-    "tip_acceleration_measured": (3, "estimated tip acceleration (m/s^2, rad/s^2)"),
-    "joint_positions_estimated": (3, "q1, q2 as read, q3 filtered (rad)"),
-    "joint_velocities_estimated": (3, "joint velocities by backward differences (rad/s)"),
-}
-
-#: Exported only when the scenario has them: name -> (size, meaning).
-OPTIONAL_OUTPUTS = {
-    "force_measured_antialiased": (1, "second DSP channel through the 190 Hz RC filter (N)"),
-    "mode": (1, "controller mode: 0 approach, 1 contact"),
-    "force_desired": (1, "desired normal force f_d (N)"),
-    "contact_info": (4, "[first switch time (s) or -1, x, y, phi at the switch]"),
-    "nn_output": (3, "compensator output n = [n_x (N), n_y (N), n_phi (N m)]"),
-    "hybrid_torque": (3, "the hybrid part's command tau_h, before J^T n (N m)"),
-}
+from drake_contact.sensing.dsp import AddDspForceInput
+from drake_contact.sensing.estimator import AddKinematicEstimator
+from drake_contact.sensing.force_sensor import AddForceSensor
 
 
-def _add_push_controller(builder, scenario, plant, measured):
+@dc.dataclass(frozen=True)
+class Signal:
+    """One exported output of the station."""
+
+    # Vector size.
+    size: int
+    # What it is, with units and frame.
+    meaning: str
+    # Log keys it is logged under: {key: column slice or index}. Empty: not
+    # logged (e.g. the SceneGraph's query object).
+    log_as: dict
+
+
+class _Signals:
+    """Collects the station's exports: one call documents, exports and logs
+    a signal."""
+
+    def __init__(self, builder):
+        self._builder = builder
+        self.signals = {}
+
+    def export(self, name, port, meaning, *, log_as=None, log=True):
+        """Exports ``port`` as ``name``; logs it under ``name`` (a size-1
+        port as a 1-D log), or under the keys of ``log_as``."""
+        if log_as is None:
+            log_as = {name: 0 if port.size() == 1 else slice(0, port.size())} if log else {}
+        self._builder.ExportOutput(port, name)
+        self.signals[name] = Signal(port.size(), meaning, dict(log_as))
+
+
+class ContactStation(Diagram):
+    """The contact diagram of one scenario (built by :func:`MakeContactDiagram`).
+
+    ``scenario`` is the scenario it was built from; ``signals`` maps each
+    exported output port's name to its :class:`Signal`. Everything that
+    evolves lives in the Context, as in any Diagram."""
+
+    def __init__(self, scenario: Scenario, signals: dict):
+        super().__init__()
+        self.scenario = scenario
+        self.signals = signals
+
+
+def _add_push_controller(builder, scenario, plant, measured: MeasuredSignals):
     controller = builder.AddNamedSystem(
         "controller", ConstantForcePushController(plant, scenario.controller.push))
     builder.Connect(plant.get_state_output_port(), controller.GetInputPort("plant_state"))
     return {"joint_torque_commanded": controller.GetOutputPort("joint_torque_commanded")}
 
 
-def _add_hybrid_controller(builder, scenario, plant, measured):
+def _add_hybrid_controller(builder, scenario, plant, measured: MeasuredSignals):
     config = scenario.controller.hybrid
     controller = builder.AddNamedSystem("controller", HybridController(config))
     reference = builder.AddNamedSystem("force_reference", ForceReference(scenario.force_reference))
-    for name in ("tip_pose", "tip_velocity", "joint_positions", "joint_velocities"):
-        builder.Connect(measured[name], controller.GetInputPort(name))
-    builder.Connect(measured["force_filtered"], controller.GetInputPort("force"))
+    for name in ("tip_pose", "tip_velocity", "joint_positions", "joint_velocities", "force"):
+        builder.Connect(getattr(measured, name), controller.GetInputPort(name))
     builder.Connect(reference.GetOutputPort("force_desired"),
                     controller.GetInputPort("force_desired"))
     builder.Connect(controller.GetOutputPort("contact_info"),
@@ -96,16 +116,16 @@ def _add_hybrid_controller(builder, scenario, plant, measured):
     }
 
 
-def _add_nn_controller(builder, scenario, plant, measured):
+def _add_nn_controller(builder, scenario, plant, measured: MeasuredSignals):
     """The hybrid part plus the 9-12-3 compensator: tau = tau_h + J^T n."""
     ports = _add_hybrid_controller(builder, scenario, plant, measured)
     hybrid = scenario.controller.hybrid
     compensator = builder.AddNamedSystem(
         "nn_compensator",
         NnCompensator(scenario.controller.nn, hybrid.y_desired, hybrid.phi_desired))
-    builder.Connect(measured["tip_pose"], compensator.GetInputPort("tip_pose"))
+    builder.Connect(measured.tip_pose, compensator.GetInputPort("tip_pose"))
     builder.Connect(ports["tip_jacobian"], compensator.GetInputPort("tip_jacobian"))
-    builder.Connect(measured["force_filtered"], compensator.GetInputPort("force"))
+    builder.Connect(measured.force, compensator.GetInputPort("force"))
     builder.Connect(ports["force_desired"], compensator.GetInputPort("force_desired"))
     builder.Connect(ports["mode"], compensator.GetInputPort("mode"))
     builder.Connect(ports["joint_torque_commanded"], compensator.GetInputPort("hybrid_torque"))
@@ -118,18 +138,28 @@ def _add_nn_controller(builder, scenario, plant, measured):
     return ports
 
 
-#: controller.name -> adder(builder, scenario, plant, measured ports) returning
-#: a dict of its output ports, at least joint_torque_commanded.
+#: controller.name -> adder(builder, scenario, plant, measured) returning a
+#: dict of its output ports: at least joint_torque_commanded, and any of
+#: :data:`CONTROLLER_SIGNALS`, which the station then exports and logs.
 CONTROLLER_ADDERS = {
     "push": _add_push_controller,
     "hybrid": _add_hybrid_controller,
     "nn": _add_nn_controller,
 }
 
+#: Controller outputs the station exports when a controller has them.
+CONTROLLER_SIGNALS = {
+    "mode": "controller mode: 0 approach, 1 contact",
+    "force_desired": "desired normal force f_d (N)",
+    "contact_info": "[first switch time (s) or -1, x, y, phi at the switch] (s, m, rad)",
+    "nn_output": "compensator output n = [n_x (N), n_y (N), n_phi (N m)]",
+    "hybrid_torque": "the hybrid part's command tau_h, before J^T n (N m)",
+}
+
 
 def _add_arm_and_wall(builder, scenario):
     """The plant, its tip kinematics, the wall and the joint friction, wired;
-    returns (plant, scene_graph, tip, wall, friction torque port)."""
+    returns (plant, scene_graph, tip, wall, friction)."""
     plant, scene_graph = AddArmPlant(builder, scenario.arm)
     state_port = plant.get_state_output_port()
     joint_inertias = np.diag(plant.CalcMassMatrix(plant.CreateDefaultContext()))
@@ -142,15 +172,15 @@ def _add_arm_and_wall(builder, scenario):
     builder.Connect(tip.GetOutputPort("tip_state"), wall.GetInputPort("tip_state"))
     builder.Connect(wall.GetOutputPort("force_on_tip"), tip.GetInputPort("force_on_tip"))
 
-    friction_in, friction_out = AddJointFriction(
+    friction = AddJointFriction(
         builder, scenario.joint_friction, mass_matrix_diagonal=joint_inertias,
         time_step=scenario.arm.time_step)
-    builder.Connect(state_port, friction_in)
+    builder.Connect(state_port, friction.GetInputPort("plant_state"))
     external = builder.AddNamedSystem("external_torque", Adder(2, 3))
     builder.Connect(tip.GetOutputPort("generalized_force"), external.get_input_port(0))
-    builder.Connect(friction_out, external.get_input_port(1))
+    builder.Connect(friction.GetOutputPort("torque"), external.get_input_port(1))
     builder.Connect(external.get_output_port(), plant.get_applied_generalized_force_input_port())
-    return plant, scene_graph, tip, wall, friction_out
+    return plant, scene_graph, tip, wall, friction
 
 
 def MakeFloorDiagram(scenario: Scenario, joint_torque=(4.0, 0.0, 0.0)):
@@ -168,63 +198,60 @@ def MakeFloorDiagram(scenario: Scenario, joint_torque=(4.0, 0.0, 0.0)):
     return diagram
 
 
-def MakeContactDiagram(scenario: Scenario, *, meshcat=None):
-    """The arm, its joint physics, the wall and the scenario's controller.
+def MakeContactDiagram(scenario: Scenario) -> ContactStation:
+    """The arm, its joint physics, the wall, the sensors, the scenario's
+    controller and identifiers.
 
-    Returns a Diagram named ``contact_diagram`` exporting the outputs listed in
-    :data:`EXPORTED_OUTPUTS`. Raises ScenarioError for settings that cannot
-    run (e.g. friction regularization unstable at the plant step).
-
-    Given a ``meshcat``, also draws the arm, the wall and the contact force
-    there (:mod:`drake_contact.visualization`); without one, nothing is
-    added and a run pays nothing for visualization.
+    Returns a :class:`ContactStation` named ``station`` whose output ports
+    are listed, with sizes and meanings, in its ``signals``; ``query_object``
+    (the SceneGraph's, for a visualizer) is exported too. Raises
+    ScenarioError for settings that cannot run (e.g. friction regularization
+    unstable at the plant step). Its noise is seeded by :func:`SeedNoise`.
     """
     scenario.validate()
-    builder = DiagramBuilder()
-    plant, scene_graph, tip, wall, friction_out = _add_arm_and_wall(builder, scenario)
-    state_port = plant.get_state_output_port()
-
-    encoders_in, encoders_out = AddEncoders(
-        builder, scenario.encoders, scenario.arm.initial_positions)
-    builder.Connect(state_port, encoders_in)
-    estimator = AddKinematicEstimator(builder, MakeArmModel(), scenario.estimator)
-    builder.Connect(encoders_out, estimator["joint_positions_measured"])
-
-    sensor = AddForceSensor(builder, scenario.force_sensor)
-    builder.Connect(wall.GetOutputPort("force_on_tip"), sensor["wrench"])
-    builder.Connect(tip.GetOutputPort("tip_state"), sensor["tip_state"])
-    dsp = AddDspForceInput(builder, scenario.dsp, scenario.force_sensor.fine_period,
-                           sensor["voltage_frame"].size())
-    builder.Connect(sensor["voltage"], dsp["voltage"])
-    if "voltage_frame" in dsp:
-        builder.Connect(sensor["voltage_frame"], dsp["voltage_frame"])
-
     if scenario.controller.name not in CONTROLLER_ADDERS:
         raise ScenarioError(f"controller.name = '{scenario.controller.name}' is unknown: "
                             f"choose one of {', '.join(CONTROLLER_ADDERS)}")
-    measured = {
-        "tip_pose": estimator["tip_pose"], "tip_velocity": estimator["tip_velocity"],
-        "joint_positions": estimator["joint_positions"],
-        "joint_velocities": estimator["joint_velocities"],
-        "force_filtered": dsp["force_filtered"],
-        "force_measured": dsp["force_measured"],
-        "tip_acceleration": estimator["tip_acceleration"],
-        "tip_velocity_raw": estimator["tip_velocity_raw"],
-        "tip_acceleration_raw": estimator["tip_acceleration_raw"],
-    }
-    controller_ports = CONTROLLER_ADDERS[scenario.controller.name](
-        builder, scenario, plant, measured)
-    torque = controller_ports["joint_torque_commanded"]
-    identifier_ports = {}
+    builder = DiagramBuilder()
+    plant, scene_graph, tip, wall, friction = _add_arm_and_wall(builder, scenario)
+    state_port = plant.get_state_output_port()
+
+    encoders = AddEncoders(builder, scenario.encoders, scenario.arm.initial_positions)
+    builder.Connect(state_port, encoders.GetInputPort("plant_state"))
+    estimator = AddKinematicEstimator(builder, MakeArmModel(), scenario.estimator)
+    builder.Connect(encoders.GetOutputPort("joint_positions_measured"),
+                    estimator.GetInputPort("joint_positions_measured"))
+
+    sensor = AddForceSensor(builder, scenario.force_sensor)
+    builder.Connect(wall.GetOutputPort("force_on_tip"), sensor.GetInputPort("wrench"))
+    builder.Connect(tip.GetOutputPort("tip_state"), sensor.GetInputPort("tip_state"))
+    dsp = AddDspForceInput(builder, scenario.dsp, scenario.force_sensor.fine_period,
+                           sensor.GetOutputPort("voltage_frame").size())
+    builder.Connect(sensor.GetOutputPort("voltage"), dsp.GetInputPort("voltage"))
+    if dsp.HasInputPort("voltage_frame"):
+        builder.Connect(sensor.GetOutputPort("voltage_frame"), dsp.GetInputPort("voltage_frame"))
+
+    measured = MeasuredSignals(
+        force=dsp.GetOutputPort("force_filtered"), force_raw=dsp.GetOutputPort("force_measured"),
+        **{name: estimator.GetOutputPort(name) for name in (
+            "tip_pose", "tip_velocity", "tip_acceleration", "joint_positions",
+            "joint_velocities", "tip_velocity_raw", "tip_acceleration_raw")})
+    controller = CONTROLLER_ADDERS[scenario.controller.name](builder, scenario, plant, measured)
+    torque = controller["joint_torque_commanded"]
+    identifiers = None
     if scenario.identifiers:
-        identifier_ports = AddIdentifiers(builder, scenario, measured,
-                                          controller_ports["contact_info"])
+        identifiers = AddIdentifiers(builder, scenario)
+        for name, port in measured.items():
+            if identifiers.HasInputPort(name):
+                builder.Connect(port, identifiers.GetInputPort(name))
+        builder.Connect(controller["contact_info"], identifiers.GetInputPort("contact_info"))
         source = scenario.controller.hybrid.stiffness_source
         if source:
             pick = builder.AddNamedSystem("stiffness_from_identifier",
                                           MatrixGain(np.array([[0.0, 0.0, 1.0]])))
-            builder.Connect(identifier_ports[source]["impedance"], pick.get_input_port())
-            builder.Connect(pick.get_output_port(), controller_ports["stiffness_estimate_input"])
+            builder.Connect(identifiers.GetOutputPort(f"impedance_{source}"),
+                            pick.get_input_port())
+            builder.Connect(pick.get_output_port(), controller["stiffness_estimate_input"])
     saturation = AddTorqueSaturation(builder, scenario.torque_limits)
     motors = builder.AddNamedSystem(
         "motors", MatrixGain(np.diag(scenario.arm.motor_torque_scale)))
@@ -232,50 +259,115 @@ def MakeContactDiagram(scenario: Scenario, *, meshcat=None):
     builder.Connect(saturation.get_output_port(), motors.get_input_port())
     builder.Connect(motors.get_output_port(), plant.get_actuation_input_port())
 
-    exports = {
-        "joint_state_true": state_port,
-        "tip_state_true": tip.GetOutputPort("tip_state"),
-        "contact_force_true": wall.GetOutputPort("contact_force"),
-        "penetration_true": wall.GetOutputPort("penetration"),
-        "true_impedance": wall.GetOutputPort("true_impedance"),
-        "joint_positions_measured": encoders_out,
-        "joint_torque_commanded": torque,
-        "joint_torque_applied": motors.get_output_port(),
-        "joint_friction_torque": friction_out,
-        "force_measured": dsp["force_measured"],
-        "force_filtered": dsp["force_filtered"],
-        "tip_pose_measured": estimator["tip_pose"],
-        "tip_velocity_measured": estimator["tip_velocity"],
-        "tip_acceleration_measured": estimator["tip_acceleration"],
-        "joint_positions_estimated": estimator["joint_positions"],
-        "joint_velocities_estimated": estimator["joint_velocities"],
-    }
-    assert exports.keys() == EXPORTED_OUTPUTS.keys()
-    if "force_measured_antialiased" in dsp:
-        exports["force_measured_antialiased"] = dsp["force_measured_antialiased"]
-    for name, port in controller_ports.items():
-        if name in OPTIONAL_OUTPUTS:
-            exports[name] = port
-    for name, ports in identifier_ports.items():
-        exports[f"impedance_{name}"] = ports["impedance"]
-        if "force_estimate" in ports:
-            exports[f"force_estimate_{name}"] = ports["force_estimate"]
-    for name, port in exports.items():
-        builder.ExportOutput(port, name)
+    signals = _Signals(builder)
+    export = signals.export
+    export("joint_state_true", state_port, "arm [q; v] (rad, rad/s)",
+           log_as={"joint_positions_true": slice(0, 3), "joint_velocities_true": slice(3, 6)})
+    export("tip_state_true", tip.GetOutputPort("tip_state"),
+           "tip [x, y, phi, xdot, ydot, phidot], world (m, rad, /s)",
+           log_as={"tip_pose_true": slice(0, 3), "tip_velocity_true": slice(3, 6)})
+    export("contact_force_true", wall.GetOutputPort("contact_force"),
+           "true normal force on the tip (N)")
+    export("penetration_true", wall.GetOutputPort("penetration"),
+           "true surface displacement xe (m)")
+    export("true_impedance", wall.GetOutputPort("true_impedance"),
+           "true [M_e, B_e, K_e] (kg, N s/m, N/m)")
+    export("joint_positions_measured", encoders.GetOutputPort("joint_positions_measured"),
+           "encoder-quantized q, zeroed at q0 (rad)")
+    export("joint_torque_commanded", torque, "controller's torque before saturation (N m)")
+    export("joint_torque_applied", motors.get_output_port(),
+           "motor torque into the plant: saturated, times the motor scale (N m)")
+    export("joint_friction_torque", friction.GetOutputPort("torque"),
+           "friction torque on the joints (N m)")
+    export("force_measured", measured.force_raw, "DSP force after ADC, scale, sign and tare (N)")
+    export("force_filtered", measured.force, "force_measured through the 120 Hz Butterworth (N)")
+    if dsp.HasOutputPort("force_measured_antialiased"):
+        export("force_measured_antialiased", dsp.GetOutputPort("force_measured_antialiased"),
+               "second DSP channel through the 190 Hz RC filter (N)")
+    export("tip_pose_measured", measured.tip_pose, "estimated tip [x, y, phi] from encoders (m, rad)")
+    export("tip_velocity_measured", measured.tip_velocity, "estimated tip velocity (m/s, rad/s)")
+    export("tip_acceleration_measured", measured.tip_acceleration,
+           "estimated tip acceleration (m/s^2, rad/s^2)")
+    export("joint_positions_estimated", measured.joint_positions,
+           "q1, q2 as read, q3 filtered (rad)")
+    export("joint_velocities_estimated", measured.joint_velocities,
+           "joint velocities by backward differences (rad/s)")
+    for name, meaning in CONTROLLER_SIGNALS.items():
+        if name in controller:
+            export(name, controller[name], meaning)
+    if identifiers is not None:
+        for config in scenario.identifiers:
+            export(f"impedance_{config.name}",
+                   identifiers.GetOutputPort(f"impedance_{config.name}"),
+                   f"identifier {config.name}'s [M_e, B_e, K_e] (kg, N s/m, N/m)")
+            if identifiers.HasOutputPort(f"force_estimate_{config.name}"):
+                export(f"force_estimate_{config.name}",
+                       identifiers.GetOutputPort(f"force_estimate_{config.name}"),
+                       f"identifier {config.name}'s network force f(x) (N)")
+    export("query_object", scene_graph.get_query_output_port(),
+           "the SceneGraph's query object (for visualizers)", log=False)
 
-    if meshcat is not None:
-        from drake_contact.visualization import AddContactVisualization
-        AddContactVisualization(
-            builder, scene_graph, meshcat, tip_state=tip.GetOutputPort("tip_state"),
-            penetration=wall.GetOutputPort("penetration"),
-            contact_force=wall.GetOutputPort("contact_force"),
-            surface_x=scenario.environment.surface_x)
-
-    diagram = builder.Build()
-    diagram.set_name("contact_diagram")
-    return diagram
+    station = ContactStation(scenario, signals.signals)
+    builder.BuildInto(station)
+    station.set_name("station")
+    _check_unique_noise_names(station)
+    return station
 
 
 def control_steps_per_plant_step(scenario: Scenario) -> int:
     """How many plant steps make one 1 ms control period."""
     return int(round(CONTROL_PERIOD / scenario.arm.time_step))
+
+
+def leaf_systems(diagram):
+    """Every leaf system of ``diagram``, depth first, in diagram order."""
+    for system in diagram.GetSystems():
+        if isinstance(system, Diagram):
+            yield from leaf_systems(system)
+        else:
+            yield system
+
+
+#: Each noise source's seed hashes this prefix and its name. (The prefix is
+#: the path the first release hashed, kept so that a scenario and seed keep
+#: the noise realization their published results were measured with.)
+_NOISE_KEY_PREFIX = "::run::station::"
+
+
+def _check_unique_noise_names(station):
+    names = [s.get_name() for s in leaf_systems(station) if isinstance(s, RandomSource)]
+    if len(names) != len(set(names)):
+        raise ValueError(f"the station's noise sources need unique names (seeded by name): {names}")
+
+
+def SeedNoise(diagram, context, seed=None):
+    """Seeds the random state of every :class:`ContactStation` in
+    ``diagram`` (the root diagram of ``context``, or a station itself).
+
+    Each station's systems get their random state from ``seed`` (default:
+    its scenario's ``simulation.seed``), and each RandomSource then its own
+    generator, seeded from that seed and the source's name, so the noise is
+    the same whatever else the diagram holds, however the outer diagram and
+    the station are named, and whatever controller or identifier is wired
+    in. Systems outside the stations are not touched."""
+    stations = [diagram] if isinstance(diagram, ContactStation) else list(_stations(diagram))
+    if not stations:
+        raise ValueError(f"'{diagram.get_name()}' holds no ContactStation to seed")
+    for station in stations:
+        station_seed = station.scenario.simulation.seed if seed is None else int(seed)
+        station_context = station.GetMyMutableContextFromRoot(context)
+        station.SetRandomContext(station_context, RandomGenerator(station_seed))
+        for system in leaf_systems(station):
+            if isinstance(system, RandomSource):
+                key = zlib.crc32((_NOISE_KEY_PREFIX + system.get_name()).encode())
+                system.SetRandomContext(
+                    system.GetMyMutableContextFromRoot(context),
+                    RandomGenerator((station_seed * 1_000_003 + key) % 2**31))
+
+
+def _stations(diagram):
+    for system in diagram.GetSystems():
+        if isinstance(system, ContactStation):
+            yield system
+        elif isinstance(system, Diagram):
+            yield from _stations(system)

@@ -16,34 +16,33 @@ import numpy as np
 import yaml
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 
-from drake_contact.arm import ArmConfig
-from drake_contact.compliant_wall import EnvironmentConfig
-from drake_contact.dsp import DspConfig
-from drake_contact.estimator import EstimatorConfig
-from drake_contact.force_reference import ForceReferenceConfig
-from drake_contact.force_sensor import ForceSensorConfig
-from drake_contact.hybrid_controller import HybridControllerConfig
-from drake_contact.identification import IdentifierConfig, validate_identifiers
+from drake_contact.plant.arm import ArmConfig
+from drake_contact.plant.compliant_wall import EnvironmentConfig
+from drake_contact.sensing.dsp import DspConfig
+from drake_contact.sensing.estimator import EstimatorConfig
+from drake_contact.control.force_reference import ForceReferenceConfig
+from drake_contact.sensing.force_sensor import ForceSensorConfig
+from drake_contact.control.hybrid_controller import HybridControllerConfig
+from drake_contact.identification.identifiers import IdentifierConfig, validate_identifiers
 from drake_contact.errors import ScenarioError
-from drake_contact.nn_compensator import NnCompensatorConfig
-from drake_contact.joint_physics import (
+from drake_contact.control.nn_compensator import NnCompensatorConfig
+from drake_contact.plant.joint_physics import (
     THESIS_TORQUE_LIMITS, EncoderConfig, JointFrictionConfig)
-from drake_contact.push_controller import PushConfig
+from drake_contact.control.push_controller import PushConfig
 from drake_contact.resources import bundled_scenario_names, scenarios_dir
 
 class _Loader(yaml.SafeLoader):
     """PyYAML's safe loader, reading YAML 1.2 floats such as ``6.2e4`` or
-    ``1e-3`` as numbers (YAML 1.1 reads them as strings)."""
+    ``1e-3`` as numbers (YAML 1.1 reads them as strings), as Drake's own
+    ``yaml_load_typed`` does."""
 
 
-_Loader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+_YAML12_FLOAT = re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
                    |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
                    |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
                    |[-+]?\.(?:inf|Inf|INF)
-                   |\.(?:nan|NaN|NAN))$""", re.X),
-    list("-+0123456789."))
+                   |\.(?:nan|NaN|NAN))$""", re.X)
+_Loader.add_implicit_resolver("tag:yaml.org,2002:float", _YAML12_FLOAT, list("-+0123456789."))
 
 
 def _yaml_load(text):
@@ -190,6 +189,11 @@ class Scenario:
         self.scoring.validate()
 
 
+def _looks_like_yaml(text) -> bool:
+    return isinstance(text, str) and ("\n" in text or ":" in text.split("#")[0]) \
+        and not Path(text).is_file()
+
+
 def resolve_scenario_path(name_or_path) -> Path:
     """A path to an existing file, or the bundled scenario of that name."""
     path = Path(name_or_path)
@@ -203,24 +207,36 @@ def resolve_scenario_path(name_or_path) -> Path:
         f"choose a path or one of {', '.join(bundled_scenario_names())}")
 
 
-def load_scenario(name_or_path, overrides=(), *, duration=None, seed=None) -> Scenario:
+def load_scenario(source, overrides=(), *, duration=None, seed=None) -> Scenario:
     """Loads, overrides and validates a scenario.
 
-    ``overrides`` are strings ``dotted.key=value`` (value parsed as YAML);
-    ``duration`` and ``seed`` set ``simulation.duration`` and ``.seed``.
+    ``source`` is a bundled scenario's name (``"push_constant"``), a path to
+    a YAML file, YAML text (``"environment: {stiffness: 6.2e4}"``; any
+    text with a newline or a ``key:``), or a mapping. Fields left out keep
+    their defaults. ``overrides`` are strings ``dotted.key=value`` (value
+    parsed as YAML); ``duration`` and ``seed`` set ``simulation.duration``
+    and ``.seed``. Numbers follow YAML 1.2, as Drake's ``yaml_load_typed``
+    reads them (``6.2e4`` is a number). Raises ScenarioError naming the
+    field for anything unknown, mistyped or out of range.
     """
-    path = resolve_scenario_path(name_or_path)
+    if isinstance(source, dict):
+        text, origin = yaml.safe_dump(source), "scenario"
+    elif _looks_like_yaml(source):
+        text, origin = source, "scenario text"
+    else:
+        path = resolve_scenario_path(source)
+        text, origin = path.read_text(), str(path)
     try:
-        data = _yaml_load(path.read_text())
+        data = _yaml_load(text)
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
         problem = getattr(e, "problem", None) or str(e).splitlines()[0]
-        raise ScenarioError(f"{path}: malformed YAML{where}: {problem}") from None
+        raise ScenarioError(f"{origin}: malformed YAML{where}: {problem}") from None
     if data is None:
         data = {}
     if not isinstance(data, dict):
-        raise ScenarioError(f"{path}: a scenario must be a YAML mapping of keys, "
+        raise ScenarioError(f"{origin}: a scenario must be a YAML mapping of keys, "
                             f"not a {type(data).__name__}")
     overrides = list(overrides)
     if duration is not None:
@@ -229,11 +245,13 @@ def load_scenario(name_or_path, overrides=(), *, duration=None, seed=None) -> Sc
         overrides.append(f"simulation.seed={seed}")
     for item in overrides:
         _apply_override(data, item)
-    return scenario_from_data(data, source=str(path))
+    return scenario_from_data(data, source=origin)
 
 
 def scenario_from_data(data: dict, *, source="scenario") -> Scenario:
-    """Checks keys and types of a plain mapping, then loads and validates it."""
+    """Checks keys and types of a plain mapping (e.g. from ``yaml.safe_load``:
+    a float field given as the string ``"6.2e4"`` is read as YAML 1.2 would),
+    then loads and validates it."""
     _check_schema(Scenario, data, prefix="")
     try:
         scenario = yaml_load_typed(schema=Scenario, data=yaml.safe_dump(data))
@@ -277,21 +295,23 @@ def _check_schema(schema, data, prefix):
         if key not in hints:
             known = ", ".join(f.name for f in dc.fields(schema))
             raise ScenarioError(f"{name} is not a scenario key: known keys here are {known}")
-        _check_type(hints[key], value, name)
+        data[key] = _check_type(hints[key], value, name)
 
 
 def _check_type(hint, value, name):
+    """Returns ``value`` (a YAML 1.1 float string as a float) once it is
+    of the field's type; raises ScenarioError naming the field otherwise."""
     if dc.is_dataclass(hint):
         _check_schema(hint, value, prefix=f"{name}.")
-        return
+        return value
     origin = typing.get_origin(hint)
     if origin is list:
         (item_hint,) = typing.get_args(hint)
         if not isinstance(value, list):
             raise ScenarioError(f"{name} = {value!r} must be a list")
-        for i, item in enumerate(value):
-            _check_type(item_hint, item, f"{name}[{i}]")
-        return
+        return [_check_type(item_hint, item, f"{name}[{i}]") for i, item in enumerate(value)]
+    if hint is float and isinstance(value, str) and _YAML12_FLOAT.match(value):
+        return float(value.replace("_", ""))
     ok = {
         float: isinstance(value, (int, float)) and not isinstance(value, bool),
         int: isinstance(value, int) and not isinstance(value, bool),
@@ -302,3 +322,4 @@ def _check_type(hint, value, name):
         kind = {float: "a number", int: "a whole number", bool: "true or false",
                 str: "a string"}[hint]
         raise ScenarioError(f"{name} = {value!r} must be {kind}")
+    return value

@@ -5,10 +5,10 @@ import pytest
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from drake_contact.arm import (
+from drake_contact.plant.arm import (
     LINK_COM_OFFSETS, LINK_IZZ, LINK_LENGTHS, LINK_MASSES, THESIS_Q0, TIP_FRAME,
     AddArmPlant, ArmConfig, MakeArmModel)
-from drake_contact.tip_kinematics import CalcTipPoseAndJacobian
+from drake_contact.plant.tip_kinematics import CalcTipPoseAndJacobian
 
 
 def hand_mass_matrix(q):

@@ -6,7 +6,7 @@ import dataclasses as dc
 import numpy as np
 import pytest
 
-from drake_contact.compliant_wall import CompliantWall, EnvironmentConfig
+from drake_contact.plant.compliant_wall import CompliantWall, EnvironmentConfig
 from drake_contact.errors import ScenarioError
 
 H = 1e-3

@@ -3,7 +3,7 @@ alone misses the square wave (Fig 6.10)."""
 
 import pytest
 
-from drake_contact.runner import run
+from drake_contact.app.runner import run
 from drake_contact.scenario import load_scenario
 
 IDENTIFY = [

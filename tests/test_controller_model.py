@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 import thesis_closed_forms as thesis
-from drake_contact.arm import LINK_IZZ, LINK_MASSES
-from drake_contact.controller_model import ArmModel, ControllerModelConfig
+from drake_contact.plant.arm import LINK_IZZ, LINK_MASSES
+from drake_contact.control.controller_model import ArmModel, ControllerModelConfig
 
 
 @pytest.mark.parametrize("mass_scale,inertia_scale", [

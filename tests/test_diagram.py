@@ -6,17 +6,24 @@ import re
 import numpy as np
 import pytest
 
-from drake_contact.diagram import EXPORTED_OUTPUTS, MakeContactDiagram
+from drake_contact.diagram import ContactStation, MakeContactDiagram
 from drake_contact.errors import ScenarioError
-from drake_contact.runner import LOG_SIGNALS, run
+from drake_contact.app.runner import run
 from drake_contact.scenario import load_scenario
+
+
+#: push_constant pushing from t = 0 (inside the tare window): for tests of
+#: the plant and the wall that read only the ground truth.
+PUSH_AT_ONCE = "controller.push.start_time=0"
 
 
 def test_diagram_exports_its_named_outputs():
     diagram = MakeContactDiagram(load_scenario("push_constant"))
-    assert diagram.get_name() == "contact_diagram"
-    for name, (size, _) in EXPORTED_OUTPUTS.items():
-        assert diagram.GetOutputPort(name).size() == size
+    assert isinstance(diagram, ContactStation) and diagram.get_name() == "station"
+    assert diagram.num_output_ports() == len(diagram.signals)
+    for name, signal in diagram.signals.items():
+        assert diagram.GetOutputPort(name).size() == signal.size
+        assert signal.meaning
     names = {diagram.GetSubsystemByName(n).get_name() for n in (
         "plant", "wall", "tip_kinematics", "controller", "torque_saturation",
         "joint_friction", "encoders")}
@@ -36,6 +43,10 @@ def test_push_constant_settles_at_force_over_penetration_equal_to_stiffness(tmp_
     # The tip is at rest in the settle window.
     settle = result.log["t"] > scenario.simulation.duration - scenario.simulation.settle_window
     assert np.max(np.abs(result.log["tip_velocity_true"][settle, 0])) < 1e-3
+    # The push starts after the tare: the measured force is the true one.
+    true_force = np.mean(result.log["contact_force_true"][settle])
+    assert abs(np.mean(result.log["force_filtered"][settle]) / true_force - 1) < 0.02
+    assert "warnings" not in m
     # Outputs on disk.
     for name in ("scenario.yaml", "log.npz", "metrics.json"):
         assert (tmp_path / name).is_file()
@@ -51,7 +62,8 @@ def test_push_constant_settles_at_force_over_penetration_equal_to_stiffness(tmp_
     required = {"t", "tip_pose_true", "contact_force_true", "penetration_true",
                 "joint_torque_commanded", "force_measured", "force_filtered",
                 "tip_pose_measured", "tip_velocity_measured", "tip_acceleration_measured"}
-    assert required <= set(log.files) <= set(LOG_SIGNALS) | {"t"}
+    logged = {key for s in MakeContactDiagram(scenario).signals.values() for key in s.log_as}
+    assert required <= set(log.files) <= logged | {"t"}
 
 
 @pytest.mark.parametrize("overrides", [
@@ -61,7 +73,7 @@ def test_push_constant_settles_at_force_over_penetration_equal_to_stiffness(tmp_
     ["arm.time_step=1e-4", "environment.stiffness=6.2e4"],
 ])
 def test_arm_on_wall_is_stable_at_the_extremes(tmp_path, overrides):
-    scenario = load_scenario("push_constant", overrides, duration=2.0)
+    scenario = load_scenario("push_constant", overrides + [PUSH_AT_ONCE], duration=2.0)
     result = run(scenario, tmp_path, figures=False)
     assert result.status == "completed"
     K = scenario.environment.stiffness
@@ -80,7 +92,7 @@ def test_same_scenario_and_seed_give_bit_identical_logs(tmp_path):
 
 
 def test_runaway_force_stops_with_time_and_keeps_the_logs(tmp_path):
-    scenario = load_scenario("push_constant", ["environment.stiffness=1e9"])
+    scenario = load_scenario("push_constant", ["environment.stiffness=1e9", PUSH_AT_ONCE])
     result = run(scenario, tmp_path, figures=False)
     assert result.status == "diverged"
     when = float(re.search(r"diverged at t = ([\d.]+) s", result.message).group(1))
@@ -94,7 +106,7 @@ def test_runaway_force_stops_with_time_and_keeps_the_logs(tmp_path):
 
 
 def test_non_finite_force_stops_with_time(tmp_path):
-    scenario = load_scenario("push_constant", ["environment.stiffness=1e308",
+    scenario = load_scenario("push_constant", [PUSH_AT_ONCE, "environment.stiffness=1e308",
                                                "simulation.force_limit=.inf"])
     result = run(scenario, tmp_path, figures=False)
     assert result.status == "diverged"
@@ -108,3 +120,16 @@ def test_unstable_friction_setting_is_refused_before_simulating():
                                                "joint_friction.regularization_velocity=0.002"])
     with pytest.raises(ScenarioError, match="joint 1 needs"):
         MakeContactDiagram(scenario)
+
+
+def test_contact_inside_the_tare_window_is_warned_about_with_the_numbers(tmp_path):
+    scenario = load_scenario("push_constant", [PUSH_AT_ONCE], duration=1.0)
+    result = run(scenario, tmp_path, figures=False)
+    (warning,) = result.metrics["warnings"]
+    assert re.search(r"contact began at t = 0\.04\d s, inside the DSP's tare window "
+                     r"\(dsp.tare_window_s = 2 s\): the tare averaged a true force of 1\d\.\d\d N",
+                     warning), warning
+    # What it warns about: the measured force misses the true one.
+    late = result.log["t"] > 0.5
+    assert np.mean(result.log["contact_force_true"][late]) > 15.0
+    assert abs(np.mean(result.log["force_filtered"][late])) < 3.0

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from pydrake.systems.framework import DiagramBuilder
 
-from drake_contact.dsp import AddDspForceInput, DspConfig, DspForceInput
+from drake_contact.sensing.dsp import AddDspForceInput, DspConfig, DspForceInput
 from drake_contact.errors import ScenarioError
 
 
@@ -54,9 +54,11 @@ def test_modes_build_the_expected_channels():
         builder = DiagramBuilder()
         config = DspConfig()
         config.anti_aliasing.mode = mode
-        ports = AddDspForceInput(builder, config, 1 / 12000, 12)
-        assert ("force_measured_antialiased" in ports) == probe
-        assert ("voltage_frame" in ports) == (mode != "off")
+        dsp = AddDspForceInput(builder, config, 1 / 12000, 12)
+        assert dsp.get_name() == "dsp"
+        assert dsp.HasOutputPort("force_measured_antialiased") == probe
+        assert dsp.HasInputPort("voltage_frame") == (mode != "off")
+        assert dsp.HasOutputPort("force_filtered") and dsp.HasOutputPort("force_measured")
 
 
 @pytest.mark.parametrize("path,value,words", [

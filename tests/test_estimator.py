@@ -4,19 +4,19 @@ import numpy as np
 import pytest
 from pydrake.systems.framework import DiagramBuilder
 
-from drake_contact.arm import THESIS_Q0, TIP_FRAME, MakeArmModel
-from drake_contact.estimator import AddKinematicEstimator, EstimatorConfig, velocity_lag_s
-from drake_contact.tip_kinematics import CalcTipPoseAndJacobian
+from drake_contact.plant.arm import THESIS_Q0, TIP_FRAME, MakeArmModel
+from drake_contact.sensing.estimator import AddKinematicEstimator, EstimatorConfig, velocity_lag_s
+from drake_contact.plant.tip_kinematics import CalcTipPoseAndJacobian
 
 
 @pytest.fixture(scope="module")
 def estimator():
     builder = DiagramBuilder()
     ports = AddKinematicEstimator(builder, MakeArmModel(), EstimatorConfig())
-    builder.ExportInput(ports["joint_positions_measured"], "q")
+    builder.ExportInput(ports.GetInputPort("joint_positions_measured"), "q")
     for name in ("tip_pose", "tip_velocity", "tip_acceleration", "joint_positions",
                  "joint_velocities"):
-        builder.ExportOutput(ports[name], name)
+        builder.ExportOutput(ports.GetOutputPort(name), name)
     return builder.Build()
 
 

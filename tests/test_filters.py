@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from drake_contact.filters import (
+from drake_contact.sensing.filters import (
     butterworth_analog, butterworth_digital, differencing_filter_system, discretize_analog,
     lifted_analog_filter_system, rc_lowpass_analog)
 

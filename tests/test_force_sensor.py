@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from drake_contact.errors import ScenarioError
-from drake_contact.filters import butterworth_analog, discretize_analog
-from drake_contact.force_sensor import ForceSensor, ForceSensorConfig, noise_input_gain
+from drake_contact.sensing.filters import butterworth_analog, discretize_analog
+from drake_contact.sensing.force_sensor import ForceSensor, ForceSensorConfig, noise_input_gain
 
 TICKS = 12
 

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 import thesis_closed_forms as thesis
-from drake_contact.arm import THESIS_Q0
-from drake_contact.force_reference import ForceReferenceConfig
-from drake_contact.hybrid_controller import HybridController, HybridControllerConfig
+from drake_contact.plant.arm import THESIS_Q0
+from drake_contact.control.force_reference import ForceReferenceConfig
+from drake_contact.control.hybrid_controller import HybridController, HybridControllerConfig
 
 S = np.diag([1.0, 0.0, 0.0])
 

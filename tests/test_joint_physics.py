@@ -5,7 +5,7 @@ import pytest
 from pydrake.systems.framework import DiagramBuilder
 
 from drake_contact.errors import ScenarioError
-from drake_contact.joint_physics import (
+from drake_contact.plant.joint_physics import (
     AddEncoders, AddJointFriction, AddTorqueSaturation, EncoderConfig,
     JointFrictionConfig, check_friction_stability)
 
@@ -13,9 +13,9 @@ from drake_contact.joint_physics import (
 def friction_diagram(config):
     assert config.model == "regularized"
     builder = DiagramBuilder()
-    inp, out = AddJointFriction(builder, config)
-    builder.ExportInput(inp, "state")
-    builder.ExportOutput(out, "torque")
+    friction = AddJointFriction(builder, config)
+    builder.ExportInput(friction.GetInputPort("plant_state"), "state")
+    builder.ExportOutput(friction.GetOutputPort("torque"), "torque")
     diagram = builder.Build()
     return diagram, diagram.CreateDefaultContext()
 
@@ -59,9 +59,9 @@ def test_torque_saturation_clamps_at_the_thesis_limits():
 def test_encoders_count_from_q0_in_whole_counts():
     q0 = np.array([-0.5377671, 1.3205011, -0.7827340])
     builder = DiagramBuilder()
-    inp, out = AddEncoders(builder, EncoderConfig(), q0)
-    builder.ExportInput(inp, "state")
-    builder.ExportOutput(out, "q")
+    encoders = AddEncoders(builder, EncoderConfig(), q0)
+    builder.ExportInput(encoders.GetInputPort("plant_state"), "state")
+    builder.ExportOutput(encoders.GetOutputPort("joint_positions_measured"), "q")
     diagram = builder.Build()
     context = diagram.CreateDefaultContext()
     steps = 2 * np.pi / np.array([614400, 409600, 2000])
@@ -79,7 +79,7 @@ def test_encoders_count_from_q0_in_whole_counts():
 
 
 def lugre_diagram(levels=(4.41, 0.98, 0.05)):
-    from drake_contact.joint_physics import LuGreFriction
+    from drake_contact.plant.joint_physics import LuGreFriction
     config = JointFrictionConfig(levels=list(levels))
     friction = LuGreFriction(config, [1.03, 0.117, 0.00287], 1e-3)
     return friction, friction.CreateDefaultContext()

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from pydrake.systems.framework import DiagramBuilder
 
-from drake_contact.arm import THESIS_Q0
-from drake_contact.controller_model import ArmModel, ControllerModelConfig
+from drake_contact.plant.arm import THESIS_Q0
+from drake_contact.control.controller_model import ArmModel, ControllerModelConfig
 from drake_contact.errors import ScenarioError
-from drake_contact.nn_compensator import (
+from drake_contact.control.nn_compensator import (
     CompensatorNetwork, NnCompensator, NnCompensatorConfig, load_initial_weights)
 
 INPUTS = np.array([0.4561, 2e-4, -1e-3, 0.4560, 1.9e-4, -0.9e-3, 3.1, -0.4, 0.02])

@@ -4,7 +4,7 @@ learning a linear environment, probing."""
 import numpy as np
 import pytest
 
-from drake_contact.nn_identifier import ImpedanceNetwork, NnIdentifierConfig
+from drake_contact.identification.nn_identifier import ImpedanceNetwork, NnIdentifierConfig
 
 
 def test_gradient_step_matches_finite_differences():
@@ -53,7 +53,7 @@ def test_system_step_trains_on_the_force_less_the_switch_force(force_offset):
     """One 1 ms sample of the system equals one ImpedanceNetwork.train step on
     f (the thesis) or on f - f_s (force_offset, f_s = the first force read);
     nothing happens before the switch."""
-    from drake_contact.nn_identifier import NnIdentifier
+    from drake_contact.identification.nn_identifier import NnIdentifier
     config = NnIdentifierConfig(force_offset=force_offset)
     system = NnIdentifier(config, seed=4)
     net = ImpedanceNetwork(config)

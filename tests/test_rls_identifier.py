@@ -1,9 +1,10 @@
-"""RLS on synthetic data: exact recovery, forgetting, the switch-point bias."""
+"""RLS on synthetic data: exact recovery, forgetting, the switch-point bias;
+the RlsIdentifier system stepped alone with fixed inputs."""
 
 import numpy as np
 import pytest
 
-from drake_contact.rls_identifier import RlsConfig, RlsEstimator
+from drake_contact.identification.rls_identifier import RlsConfig, RlsEstimator, RlsIdentifier
 
 TRUE = np.array([0.05, 80.0, 7000.0])
 # A diffuse prior: P0 is a ridge toward theta0 of weight 1/P0, which would
@@ -63,3 +64,97 @@ def test_forgetting_factor_tracks_a_step_in_stiffness():
     stiff = RlsEstimator(RlsConfig(p0=DIFFUSE))
     k_plain = np.array([stiff.update(xe[k], xd[k], xdd[k], f[k])[2] for k in range(len(t))])
     assert abs(k_plain[(t > 2.9) & (t < 3.0)].mean() / 9000 - 1) > 0.05
+
+
+# The Drake system alone: inputs fixed, one periodic update at a time.
+
+X_SWITCH = 0.456  # m, the tip's x at the contact switch
+# The system's discrete state groups, in declaration order.
+IMPEDANCE_GROUP, THETA_P_GROUP = 0, 1
+
+
+def make_identifier(**fields):
+    system = RlsIdentifier(RlsConfig(**fields))
+    return system, system.CreateDefaultContext()
+
+
+def fix_inputs(system, context, *, t_contact, xe, xd, xdd, f):
+    system.GetInputPort("force").FixValue(context, [f])
+    system.GetInputPort("tip_pose").FixValue(context, [X_SWITCH + xe, 0.1, 0.0])
+    # y and phi channels carry junk the identifier must ignore.
+    system.GetInputPort("tip_velocity").FixValue(context, [xd, -0.3, 2.0])
+    system.GetInputPort("tip_acceleration").FixValue(context, [xdd, 5.0, -7.0])
+    system.GetInputPort("contact_info").FixValue(context, [t_contact, X_SWITCH, 0.1, 0.0])
+
+
+def step(system, context):
+    context.SetDiscreteState(system.EvalUniquePeriodicDiscreteUpdate(context))
+
+
+def impedance(system, context):
+    return system.GetOutputPort("impedance").Eval(context).copy()
+
+
+def run_identifier(system, context, f_offset=0.0, steps=1000):
+    _, xe, xd, xdd = excitation(steps)
+    f = TRUE[0] * xdd + TRUE[1] * xd + TRUE[2] * xe + f_offset
+    for k in range(steps):
+        fix_inputs(system, context, t_contact=0.0, xe=xe[k], xd=xd[k], xdd=xdd[k], f=f[k])
+        step(system, context)
+    return impedance(system, context)
+
+
+def test_system_ports_and_state_sizes():
+    system, context = make_identifier()
+    sizes = {system.get_input_port(i).get_name(): system.get_input_port(i).size()
+             for i in range(system.num_input_ports())}
+    assert sizes == {"force": 1, "tip_pose": 3, "tip_velocity": 3, "tip_acceleration": 3,
+                     "contact_info": 4}
+    assert system.num_output_ports() == 1
+    assert system.GetOutputPort("impedance").size() == 3
+    # theta (3) and P (3 x 3); with the offset theta (4) and P (4 x 4).
+    assert context.get_discrete_state(THETA_P_GROUP).size() == 3 + 9
+    _, offset_context = make_identifier(force_offset=True)
+    assert offset_context.get_discrete_state(THETA_P_GROUP).size() == 4 + 16
+
+
+def test_output_port_reads_the_state():
+    system, context = make_identifier(theta0=[0.1, 20.0, 3.0e4])
+    np.testing.assert_array_equal(impedance(system, context), [0.1, 20.0, 3.0e4])
+    context.get_mutable_discrete_state(IMPEDANCE_GROUP).SetFromVector([1.0, 2.0, 3.0])
+    np.testing.assert_array_equal(impedance(system, context), [1.0, 2.0, 3.0])
+
+
+def test_estimate_holds_theta0_before_contact():
+    system, context = make_identifier()
+    initial = context.get_discrete_state(THETA_P_GROUP).value().copy()
+    _, xe, xd, xdd = excitation(200)
+    for k in range(200):
+        fix_inputs(system, context, t_contact=-1.0, xe=xe[k], xd=xd[k], xdd=xdd[k],
+                   f=TRUE @ [xdd[k], xd[k], xe[k]])
+        step(system, context)
+    np.testing.assert_array_equal(impedance(system, context), RlsConfig().theta0)
+    np.testing.assert_array_equal(context.get_discrete_state(THETA_P_GROUP).value(), initial)
+
+
+def test_one_step_matches_the_recursion():
+    system, context = make_identifier()
+    fix_inputs(system, context, t_contact=0.0, xe=1e-3, xd=0.02, xdd=-0.5, f=6.0)
+    step(system, context)
+    theta, _ = RlsEstimator.step(np.array(RlsConfig().theta0), np.diag(RlsConfig().p0[:3]),
+                                 np.array([-0.5, 0.02, 1e-3]), 6.0, 1.0)
+    np.testing.assert_allclose(impedance(system, context), theta, rtol=1e-12)
+
+
+def test_in_contact_the_system_converges_to_the_true_impedance():
+    system, context = make_identifier(p0=DIFFUSE)
+    np.testing.assert_allclose(run_identifier(system, context), TRUE, rtol=1e-6)
+
+
+def test_force_offset_form_recovers_the_impedance_under_a_constant_offset():
+    system, context = make_identifier(p0=DIFFUSE, force_offset=True)
+    np.testing.assert_allclose(run_identifier(system, context, f_offset=5.0), TRUE, rtol=1e-6)
+    assert context.get_discrete_state(THETA_P_GROUP).value()[3] == pytest.approx(5.0, rel=1e-6)
+    # The thesis's form, fed the same data, over-estimates K_e.
+    plain, plain_context = make_identifier(p0=DIFFUSE)
+    assert run_identifier(plain, plain_context, f_offset=5.0)[2] / TRUE[2] - 1 > 0.1

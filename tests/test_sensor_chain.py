@@ -11,10 +11,10 @@ from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput
 from pydrake.trajectories import PiecewisePolynomial
 from pydrake.systems.primitives import TrajectorySource
 
-import drake_contact.force_sensor as force_sensor_module
-from drake_contact.dsp import AddDspForceInput, DspConfig
-from drake_contact.force_sensor import AddForceSensor, ForceSensorConfig
-from drake_contact.runner import run
+import drake_contact.sensing.force_sensor as force_sensor_module
+from drake_contact.sensing.dsp import AddDspForceInput, DspConfig
+from drake_contact.sensing.force_sensor import AddForceSensor, ForceSensorConfig
+from drake_contact.app.runner import run
 from drake_contact.scenario import load_scenario
 
 
@@ -54,10 +54,10 @@ def step_response():
     step = builder.AddSystem(TrajectorySource(PiecewisePolynomial.ZeroOrderHold(
         [0.0, 0.1, 1.0], np.array([[0.0, -20.0, -20.0], [0.0] * 3, [0.0] * 3]))))
     pose = builder.AddSystem(ConstantVectorSource(np.zeros(6)))
-    builder.Connect(step.get_output_port(), sensor["wrench"])
-    builder.Connect(pose.get_output_port(), sensor["tip_state"])
-    builder.Connect(sensor["voltage"], dsp["voltage"])
-    logs = {name: LogVectorOutput(dsp[name], builder, 1e-3)
+    builder.Connect(step.get_output_port(), sensor.GetInputPort("wrench"))
+    builder.Connect(pose.get_output_port(), sensor.GetInputPort("tip_state"))
+    builder.Connect(sensor.GetOutputPort("voltage"), dsp.GetInputPort("voltage"))
+    logs = {name: LogVectorOutput(dsp.GetOutputPort(name), builder, 1e-3)
             for name in ("force_measured", "force_filtered")}
     diagram = builder.Build()
     simulator = Simulator(diagram)
@@ -95,8 +95,8 @@ def test_nominal_force_chain_of_the_matched_identifiers_has_the_chain_s_delay():
     50 % and rises 10-90 % within half a sample of the simulated chain's."""
     from scipy import signal
 
-    from drake_contact.dsp import DspConfig
-    from drake_contact.identification import nominal_force_chain
+    from drake_contact.sensing.dsp import DspConfig
+    from drake_contact.identification.identifiers import nominal_force_chain
     b, a = nominal_force_chain(ForceSensorConfig(), DspConfig())
     t = np.arange(0.0, 0.1, 1e-3)
     f = 20.0 * signal.lfilter(b, a, np.ones_like(t))

@@ -32,7 +32,7 @@ angular velocities of links 1, 2, 3; Appendix D's Omega_1..3, D1-1..D3-1).
 import numpy as np
 
 #: Link data as printed at the end of Appendix D (lines 1404-1409); identical
-#: to SPEC §2 and to drake_contact.arm (not imported: that module pulls in
+#: to SPEC §2 and to drake_contact.plant.arm (not imported: that module pulls in
 #: pydrake, and the oracle must stay independent of it).
 LINK_LENGTHS = (0.2207, 0.1603, 0.1508)          # a_i (m)
 LINK_MASSES = (12.88, 5.95, 0.44)                # m_i (kg)

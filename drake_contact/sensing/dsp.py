@@ -26,9 +26,10 @@ import numpy as np
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Demultiplexer, Multiplexer, PassThrough
 
-from drake_contact.arm import CONTROL_PERIOD
+from drake_contact.blocks import AddSubdiagram
+from drake_contact.plant.arm import CONTROL_PERIOD
 from drake_contact.errors import ScenarioError
-from drake_contact.filters import (
+from drake_contact.sensing.filters import (
     butterworth_digital, digital_filter_system, lifted_analog_filter_system, rc_lowpass_analog)
 
 ANTI_ALIASING_MODES = ("off", "in_loop", "probe")
@@ -138,51 +139,55 @@ class DspForceInput(LeafSystem):
 
 def AddDspForceInput(builder: DiagramBuilder, config: DspConfig, fine_period, ticks, *,
                      name="dsp"):
-    """Adds the anti-aliasing option, the ADC/tare and the force filter.
+    """Adds the anti-aliasing option, the ADC/tare and the force filter as
+    the sub-diagram ``name``; returns it.
 
     The RC filter is analog: it runs on the sensor's fine clock, lifted to
     frames of ``ticks`` ticks of ``fine_period`` (see filters.py).
 
-    Returns a dict of ports: ``voltage`` (input, 1, the sensor's output at
-    the sample instant), ``voltage_frame`` (input, ticks, the sensor's output
-    over the last frame; only read when the RC filter is in),
-    ``force_measured`` (output, 1, N), ``force_filtered`` (output, 1, N) and,
-    in ``probe`` mode, ``force_measured_antialiased`` (output, 1, N).
+    Ports: ``voltage`` (input, 1, the sensor's output at the sample
+    instant), ``voltage_frame`` (input, ticks, the sensor's output over the
+    last frame; only with the RC filter in), ``force_measured`` (output, 1,
+    N), ``force_filtered`` (output, 1, N) and, in ``probe`` mode,
+    ``force_measured_antialiased`` (output, 1, N).
     """
     config.validate()
-    mode = config.anti_aliasing.mode
-    aa = config.anti_aliasing
-    entry = builder.AddNamedSystem(f"{name}_input", PassThrough(1))
-    ports = {"voltage": entry.get_input_port()}
-    if mode != "off":
-        rc = builder.AddNamedSystem(
-            f"{name}_anti_aliasing",
-            lifted_analog_filter_system(*rc_lowpass_analog(aa.R1, aa.R2, aa.C1, aa.C2),
-                                        fine_period, ticks))
-        ports["voltage_frame"] = rc.get_input_port()
-    channels = 2 if mode == "probe" else 1
-    adc = builder.AddNamedSystem(f"{name}_force_input", DspForceInput(config, channels))
-    if mode == "probe":
-        mux = builder.AddNamedSystem(f"{name}_channels", Multiplexer(2))
-        builder.Connect(entry.get_output_port(), mux.get_input_port(0))
-        builder.Connect(rc.get_output_port(), mux.get_input_port(1))
-        builder.Connect(mux.get_output_port(), adc.GetInputPort("voltage"))
-    else:
-        source = rc if mode == "in_loop" else entry
-        builder.Connect(source.get_output_port(), adc.GetInputPort("voltage"))
-    b, a = butterworth_digital(config.force_filter_cutoff_hz, 1.0 / CONTROL_PERIOD)
-    force_filter = builder.AddNamedSystem(
-        f"{name}_force_filter", digital_filter_system(b, a, CONTROL_PERIOD, channels=channels))
-    builder.Connect(adc.GetOutputPort("force"), force_filter.get_input_port())
-    if channels == 1:
-        ports["force_measured"] = adc.GetOutputPort("force")
-        ports["force_filtered"] = force_filter.get_output_port()
-    else:
-        raw = builder.AddNamedSystem(f"{name}_raw_channels", Demultiplexer(2))
-        filtered = builder.AddNamedSystem(f"{name}_filtered_channels", Demultiplexer(2))
-        builder.Connect(adc.GetOutputPort("force"), raw.get_input_port())
-        builder.Connect(force_filter.get_output_port(), filtered.get_input_port())
-        ports["force_measured"] = raw.get_output_port(0)
-        ports["force_measured_antialiased"] = raw.get_output_port(1)
-        ports["force_filtered"] = filtered.get_output_port(0)
-    return ports
+
+    def build(builder):
+        mode = config.anti_aliasing.mode
+        aa = config.anti_aliasing
+        entry = builder.AddNamedSystem(f"{name}_input", PassThrough(1))
+        ports = {"voltage": entry.get_input_port()}
+        if mode != "off":
+            rc = builder.AddNamedSystem(
+                f"{name}_anti_aliasing",
+                lifted_analog_filter_system(*rc_lowpass_analog(aa.R1, aa.R2, aa.C1, aa.C2),
+                                            fine_period, ticks))
+            ports["voltage_frame"] = rc.get_input_port()
+        channels = 2 if mode == "probe" else 1
+        adc = builder.AddNamedSystem(f"{name}_force_input", DspForceInput(config, channels))
+        if mode == "probe":
+            mux = builder.AddNamedSystem(f"{name}_channels", Multiplexer(2))
+            builder.Connect(entry.get_output_port(), mux.get_input_port(0))
+            builder.Connect(rc.get_output_port(), mux.get_input_port(1))
+            builder.Connect(mux.get_output_port(), adc.GetInputPort("voltage"))
+        else:
+            source = rc if mode == "in_loop" else entry
+            builder.Connect(source.get_output_port(), adc.GetInputPort("voltage"))
+        b, a = butterworth_digital(config.force_filter_cutoff_hz, 1.0 / CONTROL_PERIOD)
+        force_filter = builder.AddNamedSystem(
+            f"{name}_force_filter", digital_filter_system(b, a, CONTROL_PERIOD, channels=channels))
+        builder.Connect(adc.GetOutputPort("force"), force_filter.get_input_port())
+        if channels == 1:
+            ports["force_measured"] = adc.GetOutputPort("force")
+            ports["force_filtered"] = force_filter.get_output_port()
+        else:
+            raw = builder.AddNamedSystem(f"{name}_raw_channels", Demultiplexer(2))
+            filtered = builder.AddNamedSystem(f"{name}_filtered_channels", Demultiplexer(2))
+            builder.Connect(adc.GetOutputPort("force"), raw.get_input_port())
+            builder.Connect(force_filter.get_output_port(), filtered.get_input_port())
+            ports["force_measured"] = raw.get_output_port(0)
+            ports["force_measured_antialiased"] = raw.get_output_port(1)
+            ports["force_filtered"] = filtered.get_output_port(0)
+        return ports
+    return AddSubdiagram(builder, name, build)

@@ -27,7 +27,7 @@ import dataclasses as dc
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-from drake_contact.arm import CONTROL_PERIOD, CONTROL_SAMPLE_OFFSET
+from drake_contact.plant.arm import CONTROL_PERIOD, CONTROL_SAMPLE_OFFSET
 from drake_contact.errors import ScenarioError
 
 

@@ -18,9 +18,9 @@ import dataclasses as dc
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-from drake_contact.arm import CONTROL_PERIOD, TIP_FRAME
+from drake_contact.plant.arm import CONTROL_PERIOD, TIP_FRAME
 from drake_contact.errors import ScenarioError, require_finite
-from drake_contact.tip_kinematics import CalcTipPoseAndJacobian
+from drake_contact.plant.tip_kinematics import CalcTipPoseAndJacobian
 
 
 @dc.dataclass

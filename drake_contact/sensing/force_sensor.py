@@ -46,9 +46,10 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import RandomSource
 from scipy import signal
 
-from drake_contact.arm import CONTROL_PERIOD
+from drake_contact.blocks import AddSubdiagram
+from drake_contact.plant.arm import CONTROL_PERIOD
 from drake_contact.errors import ScenarioError
-from drake_contact.filters import butterworth_analog, discretize_analog
+from drake_contact.sensing.filters import butterworth_analog, discretize_analog
 
 
 @dc.dataclass
@@ -71,6 +72,9 @@ class ForceSensorConfig:
     # Standard deviation of the gauge noise after the analog filter, per
     # channel (N, N, N m): sets the +-2 N raw noise at rest (Fig 4.4).
     noise_std: list[float] = dc.field(default_factory=lambda: [0.75, 0.75, 0.01])
+    # Multiplier of noise_std on every channel (1 = the +-2 N of Fig 4.4): one
+    # number to sweep the noise level with.
+    noise_scale: float = 1.0
     # Sensor offset on Fx (N), removed by the DSP's tare, and its drift (N/s).
     offset_n: float = 3.0
     offset_drift_n_per_s: float = 0.0
@@ -107,6 +111,8 @@ class ForceSensorConfig:
             bad("calibration_matrix", "must be a finite 3 x 3 matrix")
         if len(self.noise_std) != 3 or not all(x >= 0 for x in self.noise_std):
             bad("noise_std", "must be 3 values >= 0")
+        if not (np.isfinite(self.noise_scale) and self.noise_scale >= 0):
+            bad("noise_scale", "must be >= 0")
         if not (self.dac_glitch_duration_s > 0):
             bad("dac_glitch_duration_s", "must be > 0 s")
         if self.dac_glitch_duration_s >= 0.5 / self.adc_rate_hz:
@@ -174,11 +180,19 @@ class ForceSensor(LeafSystem):
         self._gauge_L = [np.hstack([powers[j - 1 - m] @ B if m < j else np.zeros_like(B)
                                     for m in range(N)]) for j in range(N + 1)]
         self._nx = A.shape[0]
-        # Output stage (2nd order) on the fine clock, as plain floats: the
-        # tick loop below is the hot path.
+        # Output stage (2nd order) on the fine clock, lifted to the frame:
+        # frame = F xo_0 + G dac and xo_N = E xo_0 + H dac, where dac holds
+        # the DAC's output over the frame's N ticks (one matrix product per
+        # frame instead of a loop over ticks).
         Ao, Bo, Co, _ = discretize_analog(*butterworth_analog(c.output_bandwidth_hz, 2),
                                           c.fine_period)
-        self._out = (*Ao.ravel().tolist(), *Bo.ravel().tolist(), *Co.ravel().tolist())
+        powers_o = [np.linalg.matrix_power(Ao, k) for k in range(N + 1)]
+        self._out_F = np.vstack([Co @ powers_o[i] for i in range(N)])
+        self._out_G = np.array([[(Co @ powers_o[i - 1 - m] @ Bo)[0, 0] if m < i else 0.0
+                                 for m in range(N)] for i in range(N)])
+        self._out_E = powers_o[N]
+        self._out_H = np.hstack([powers_o[N - 1 - m] @ Bo for m in range(N)])
+        self._out_C = Co[0]
 
         self._wrench = self.DeclareVectorInputPort("wrench", 3)
         self._tip = self.DeclareVectorInputPort("tip_state", 6)
@@ -215,56 +229,63 @@ class ForceSensor(LeafSystem):
         nx, N = self._nx, self._ticks
         internal = context.get_discrete_state(self._internal).value()
         x0 = internal[:nx]
-        held, glitch_left, x1, x2 = internal[nx:nx + 4]
-        a11, a12, a21, a22, b1, b2, c1, c2 = self._out
+        held, glitch_left = internal[nx], int(internal[nx + 1])
+        xo0 = internal[nx + 2:nx + 4]
         u = self._wrench.Eval(context)
         noise = self._noise.Eval(context) * self._noise_gain
         t0 = context.get_time()
         first_tick = round(t0 * self._config.fine_rate_hz)
-        phi = None
-        frame = np.empty(N)
-        for i in range(N):
-            if (first_tick + i) % self._adc_every == 0:
+        # The DAC over the frame: the held value, replaced at each ADC tick
+        # (the first at -first_tick mod adc_every), plus the update glitch
+        # for glitch_ticks ticks after each update (carried across frames).
+        dac = np.full(N, held)
+        glitch = np.zeros(N)
+        glitch[:min(glitch_left, N)] = self._glitch_v
+        adc_ticks = range(-first_tick % self._adc_every, N, self._adc_every)
+        if adc_ticks:
+            phi = self._tip.Eval(context)[2]
+            for i in adc_ticks:
                 x_i = self._gauge_P[i] @ x0 + self._gauge_L[i] @ noise + self._gauge_U[i] @ u
-                if phi is None:
-                    phi = self._tip.Eval(context)[2]
                 held = self._adc(self._gauge_C @ x_i, phi, t0 + i * self._config.fine_period)
-                glitch_left = self._glitch_ticks
-            dac = held + (self._glitch_v if glitch_left > 0 else 0.0)
-            glitch_left = max(glitch_left - 1, 0)
-            frame[i] = c1 * x1 + c2 * x2
-            x1, x2 = a11 * x1 + a12 * x2 + b1 * dac, a21 * x1 + a22 * x2 + b2 * dac
+                dac[i:] = held
+                glitch[i:i + self._glitch_ticks] = self._glitch_v
+            glitch_left = max(adc_ticks[-1] + self._glitch_ticks - N, 0)
+        else:
+            glitch_left = max(glitch_left - N, 0)
+        dac += glitch
+        frame = self._out_F @ xo0 + self._out_G @ dac
+        xo_end = self._out_E @ xo0 + self._out_H @ dac
         x_end = self._gauge_P[N] @ x0 + self._gauge_L[N] @ noise + self._gauge_U[N] @ u
-        state.get_mutable_vector(self._voltage).SetAtIndex(0, c1 * x1 + c2 * x2)
+        state.get_mutable_vector(self._voltage).SetAtIndex(0, self._out_C @ xo_end)
         state.get_mutable_vector(self._frame).SetFromVector(frame)
         state.get_mutable_vector(self._internal).SetFromVector(
-            np.concatenate([x_end, [held, glitch_left, x1, x2]]))
+            np.concatenate([x_end, [held, glitch_left], xo_end]))
 
 
 def noise_input_gain(config: ForceSensorConfig):
     """Standard deviation of the white gauge noise per fine tick such that
-    the analog filter's output has ``noise_std`` (from the energy of the
-    filter's impulse response at the fine rate)."""
+    the analog filter's output has ``noise_std`` times ``noise_scale`` (from
+    the energy of the filter's impulse response at the fine rate)."""
     A, B, C, D = discretize_analog(
         *butterworth_analog(config.analog_cutoff_hz, config.analog_order), config.fine_period)
     _, (h,) = signal.dimpulse((A, B, C, D, config.fine_period),
                               n=int(20 * config.fine_rate_hz / config.analog_cutoff_hz))
     energy = float(np.sum(np.asarray(h)[:, 0] ** 2))
-    return np.asarray(config.noise_std) / np.sqrt(energy)
+    return config.noise_scale * np.asarray(config.noise_std) / np.sqrt(energy)
 
 
 def AddForceSensor(builder: DiagramBuilder, config: ForceSensorConfig, *, name="force_sensor"):
-    """Adds the FS6-120A and its noise source; returns a dict of ports:
-    ``wrench`` (input, 3: world [Fx, Fy, Tz] on the tip), ``tip_state``
-    (input, 6), ``voltage`` (output, 1, V) and ``voltage_frame`` (output, V)."""
-    sensor = builder.AddNamedSystem(name, ForceSensor(config))
-    noise = builder.AddNamedSystem(
-        f"{name}_gauge_noise",
-        RandomSource(RandomDistribution.kGaussian, 3 * sensor.ticks_per_frame, CONTROL_PERIOD))
-    builder.Connect(noise.get_output_port(), sensor.GetInputPort("gauge_noise"))
-    return {
-        "wrench": sensor.GetInputPort("wrench"),
-        "tip_state": sensor.GetInputPort("tip_state"),
-        "voltage": sensor.GetOutputPort("voltage"),
-        "voltage_frame": sensor.GetOutputPort("voltage_frame"),
-    }
+    """Adds the FS6-120A and its gauge-noise source as the sub-diagram
+    ``name``; returns it. Ports: ``wrench`` (input, 3: world [Fx, Fy, Tz] on
+    the tip, N and N m), ``tip_state`` (input, 6), ``voltage`` (output, 1, V)
+    and ``voltage_frame`` (output, ticks per 1 ms frame, V). The noise source
+    is named ``<name>_gauge_noise`` (its seed derives from that name)."""
+    def build(inner):
+        sensor = inner.AddNamedSystem(name, ForceSensor(config))
+        noise = inner.AddNamedSystem(
+            f"{name}_gauge_noise",
+            RandomSource(RandomDistribution.kGaussian, 3 * sensor.ticks_per_frame, CONTROL_PERIOD))
+        inner.Connect(noise.get_output_port(), sensor.GetInputPort("gauge_noise"))
+        return {port: sensor.GetInputPort(port) for port in ("wrench", "tip_state")} | {
+            port: sensor.GetOutputPort(port) for port in ("voltage", "voltage_frame")}
+    return AddSubdiagram(builder, name, build)

@@ -1,5 +1,6 @@
-"""Online identification in a run: several identifiers side by side, their
-scores against the true impedance, and the thesis's figures (6.1-6.9).
+"""Online identification in a run: several identifiers side by side, from
+the first contact switch (the thesis's Figs 6.1-6.9; scored by
+:mod:`drake_contact.app.metrics`).
 
 Each identifier is named; its estimate is logged as ``impedance_<name>``
 (N x 3: M_e, B_e, K_e) and scored in ``metrics.json`` as
@@ -35,16 +36,17 @@ import numpy as np
 from scipy import signal
 from pydrake.systems.framework import DiagramBuilder
 
-from drake_contact.arm import CONTROL_PERIOD
+from drake_contact.blocks import AddSubdiagram
 from drake_contact.errors import ScenarioError
-from drake_contact.filters import butterworth_digital, digital_filter_system
-from drake_contact.nn_identifier import NnIdentifier, NnIdentifierConfig
-from drake_contact.rls_identifier import RlsConfig, RlsIdentifier
+from drake_contact.measured import MeasuredSignals
+from drake_contact.plant.arm import CONTROL_PERIOD
+from drake_contact.sensing.filters import butterworth_digital, digital_filter_system
+from drake_contact.identification.nn_identifier import NnIdentifier, NnIdentifierConfig
+from drake_contact.identification.rls_identifier import RlsConfig, RlsIdentifier
 
 KINDS = ("rls", "nn")
 SIGNALS = ("filtered", "raw", "matched")
-SETTLE_TOLERANCE_NN = 0.10  # the neural identifier's bar (issue 5)
-SETTLE_TOLERANCE = 0.05
+_MEASURED_FIELDS = [field.name for field in dc.fields(MeasuredSignals)]
 
 
 @dc.dataclass
@@ -110,13 +112,15 @@ def nominal_force_chain(sensor, dsp, period=CONTROL_PERIOD):
             np.polymul(a, a_dsp))
 
 
-def _add_matched_signals(builder, scenario, measured):
+def _add_matched_signals(builder, scenario, inputs):
     """The ``matched`` versions of force, tip pose, velocity and acceleration:
-    every one through the same overall filter (force chain x 35 Hz)."""
+    every one through the same overall filter (force chain x 35 Hz).
+    ``inputs`` maps a measured signal's name to the list of inner input
+    ports its exported input feeds; returns {signal name: filtered port}."""
     b_chain, a_chain = nominal_force_chain(scenario.force_sensor, scenario.dsp)
     b_35, a_35 = butterworth_digital(scenario.estimator.cutoff_hz, 1.0 / CONTROL_PERIOD)
     filters = {
-        "force_filtered": ("force", b_35, a_35, 1),
+        "force": ("force", b_35, a_35, 1),
         "tip_pose": ("pose", np.polymul(b_chain, b_35), np.polymul(a_chain, a_35), 3),
         "tip_velocity": ("velocity", b_chain, a_chain, 3),
         "tip_acceleration": ("acceleration", b_chain, a_chain, 3),
@@ -125,7 +129,7 @@ def _add_matched_signals(builder, scenario, measured):
     for source, (name, b, a, channels) in filters.items():
         system = builder.AddNamedSystem(f"matched_{name}",
                                         digital_filter_system(b, a, CONTROL_PERIOD, channels))
-        builder.Connect(measured[source], system.get_input_port())
+        inputs[source].append(system.get_input_port())
         out[source] = system.get_output_port()
     # The position filter starts at rest at 0 and settles within ~50 ms,
     # long before any contact. xe is still referenced to the unfiltered x at
@@ -133,91 +137,46 @@ def _add_matched_signals(builder, scenario, measured):
     return out
 
 
-def AddIdentifiers(builder: DiagramBuilder, scenario, measured, contact_info):
-    """Adds each of ``scenario.identifiers``; returns {name: {"impedance": port, ...}}.
-
-    ``measured`` holds the estimator's and DSP's ports: force_filtered,
-    force_measured, tip_pose, tip_velocity, tip_acceleration and their raw
-    versions tip_velocity_raw, tip_acceleration_raw."""
-    identifiers, seed = scenario.identifiers, scenario.simulation.seed
-    matched = None
-    ports = {}
-    for index, config in enumerate(identifiers):
-        if config.kind == "rls":
-            system = RlsIdentifier(config.rls)
-        else:
-            system = NnIdentifier(config.nn, seed=seed * 1000 + index)
-        system = builder.AddNamedSystem(f"identifier_{config.name}", system)
-        if config.signals == "matched":
-            matched = matched or _add_matched_signals(builder, scenario, measured)
-            source = matched
-        elif config.signals == "raw":
-            source = dict(measured, force_filtered=measured["force_measured"],
-                          tip_velocity=measured["tip_velocity_raw"],
-                          tip_acceleration=measured["tip_acceleration_raw"])
-        else:
-            source = measured
-        builder.Connect(source["force_filtered"], system.GetInputPort("force"))
-        for name in ("tip_pose", "tip_velocity", "tip_acceleration"):
-            builder.Connect(source[name], system.GetInputPort(name))
-        builder.Connect(contact_info, system.GetInputPort("contact_info"))
-        ports[config.name] = {"impedance": system.GetOutputPort("impedance")}
-        if config.kind == "nn":
-            ports[config.name]["force_estimate"] = system.GetOutputPort("force_estimate")
-    return ports
+#: Which measured signal feeds each identifier input, per ``signals``.
+_SOURCES = {
+    "filtered": {"force": "force", "tip_pose": "tip_pose", "tip_velocity": "tip_velocity",
+                 "tip_acceleration": "tip_acceleration"},
+    "raw": {"force": "force_raw", "tip_pose": "tip_pose", "tip_velocity": "tip_velocity_raw",
+            "tip_acceleration": "tip_acceleration_raw"},
+}
 
 
-def add_stiffness_ratio(log: dict) -> None:
-    """Adds ``stiffness_ratio`` (f / xe, N/m; NaN before contact or where xe
-    is under 20 um) and ``displacement_measured`` (xe, m) to a log."""
-    if "contact_info" not in log:
-        return
-    info = log["contact_info"]
-    in_contact = info[:, 0] >= 0
-    xe = np.where(in_contact, log["tip_pose_measured"][:, 0] - info[:, 1], np.nan)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ratio = np.where(np.abs(xe) > 2e-5, log["force_filtered"] / xe, np.nan)
-    log["displacement_measured"] = xe
-    log["stiffness_ratio"] = ratio
+def AddIdentifiers(builder: DiagramBuilder, scenario, *, name="identifiers"):
+    """Adds every one of ``scenario.identifiers`` side by side, as the
+    sub-diagram ``name``; returns it.
 
+    Inputs: every :class:`~drake_contact.measured.MeasuredSignals` field by
+    its name (``force``, ``force_raw``, ``tip_pose``, ...) and
+    ``contact_info`` (4, the hybrid controller's switch record). Outputs, per
+    identifier ``<id>``: ``impedance_<id>`` (3: [M_e, B_e, K_e], kg, N s/m,
+    N/m) and, for the neural network, ``force_estimate_<id>`` (N)."""
+    seed = scenario.simulation.seed
 
-def settling_time(t, ratio, after, tolerance):
-    """Time from the first ``after`` sample from which |ratio - 1| stays below
-    ``tolerance`` (s); None if the last sample is outside."""
-    within = np.abs(ratio - 1) < tolerance
-    if not within[-1]:
-        return None
-    outside = np.flatnonzero(after & ~within)
-    start = t[np.argmax(after)]
-    return 0.0 if len(outside) == 0 else float(t[outside[-1] + 1] - start)
-
-
-def identification_metrics(log: dict, identifiers) -> dict:
-    """Final estimates, settling times and relative errors against truth."""
-    if not identifiers or "contact_info" not in log or not np.any(log["contact_info"][:, 0] >= 0):
-        return {}
-    t = log["t"]
-    t_contact = float(log["contact_info"][-1, 0])
-    truth = log["true_impedance"][-1]
-    out = {}
-    for config in identifiers:
-        est = log[f"impedance_{config.name}"]
-        final = est[-1]
-        out[f"identified_impedance_{config.name}"] = {
-            "mass": float(final[0]), "damping": float(final[1]), "stiffness": float(final[2])}
-        with np.errstate(divide="ignore", invalid="ignore"):
-            rel = (final - truth) / np.where(truth != 0, truth, np.nan)
-        out[f"identification_error_{config.name}"] = {
-            "mass": None if not np.isfinite(rel[0]) else float(rel[0]),
-            "damping": None if not np.isfinite(rel[1]) else float(rel[1]),
-            "stiffness": float(rel[2])}
-        after = t >= t_contact
-        for tolerance, key in ((SETTLE_TOLERANCE, f"identification_time_{config.name}_s"),
-                               (SETTLE_TOLERANCE_NN, f"identification_time_10pct_{config.name}_s")):
-            out[key] = settling_time(t, est[:, 2] / log["true_impedance"][:, 2], after, tolerance)
-    ratio = log.get("stiffness_ratio")
-    if ratio is not None:
-        late = (t >= t[-1] - 1.0) & np.isfinite(ratio)
-        if late.any():
-            out["stiffness_ratio_final_n_per_m"] = float(np.mean(ratio[late]))
-    return out
+    def build(builder):
+        inputs = {field: [] for field in _MEASURED_FIELDS} | {"contact_info": []}
+        outputs = {}
+        matched = None
+        for index, config in enumerate(scenario.identifiers):
+            if config.kind == "rls":
+                system = RlsIdentifier(config.rls)
+            else:
+                system = NnIdentifier(config.nn, seed=seed * 1000 + index)
+            system = builder.AddNamedSystem(f"identifier_{config.name}", system)
+            if config.signals == "matched":
+                matched = matched or _add_matched_signals(builder, scenario, inputs)
+                for port, output in matched.items():
+                    builder.Connect(output, system.GetInputPort(port))
+            else:
+                for port, source in _SOURCES[config.signals].items():
+                    inputs[source].append(system.GetInputPort(port))
+            inputs["contact_info"].append(system.GetInputPort("contact_info"))
+            outputs[f"impedance_{config.name}"] = system.GetOutputPort("impedance")
+            if config.kind == "nn":
+                outputs[f"force_estimate_{config.name}"] = system.GetOutputPort("force_estimate")
+        return {port: ports for port, ports in inputs.items() if ports} | outputs
+    return AddSubdiagram(builder, name, build)

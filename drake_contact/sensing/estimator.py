@@ -24,10 +24,11 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Demultiplexer, LinearSystem
 from scipy import signal
 
-from drake_contact.arm import CONTROL_PERIOD, TIP_FRAME
+from drake_contact.blocks import AddSubdiagram
+from drake_contact.plant.arm import CONTROL_PERIOD, TIP_FRAME
 from drake_contact.errors import ScenarioError, require_finite
-from drake_contact.filters import butterworth_digital, differencing_filter_system
-from drake_contact.tip_kinematics import CalcTipPoseAndJacobian
+from drake_contact.sensing.filters import butterworth_digital, differencing_filter_system
+from drake_contact.plant.tip_kinematics import CalcTipPoseAndJacobian
 
 
 @dc.dataclass
@@ -114,35 +115,41 @@ def _joint_filters(b, a, period):
 
 def AddKinematicEstimator(builder: DiagramBuilder, plant_model, config: EstimatorConfig, *,
                           name="estimator"):
-    """Adds the estimator; returns a dict of ports: ``joint_positions_measured``
-    (input, 3) and outputs ``tip_pose`` (3), ``tip_velocity`` (3),
-    ``tip_acceleration`` (3), ``joint_positions`` (3: q_hat), ``joint_velocities`` (3),
-    and the unfiltered differences ``tip_velocity_raw``, ``tip_acceleration_raw`` (3)."""
+    """Adds the estimator as the sub-diagram ``name``; returns it. Ports:
+    ``joint_positions_measured`` (input, 3, rad) and outputs ``tip_pose``
+    (3), ``tip_velocity`` (3), ``tip_acceleration`` (3), ``joint_positions``
+    (3: q_hat), ``joint_velocities`` (3), and the unfiltered differences
+    ``tip_velocity_raw``, ``tip_acceleration_raw`` (3)."""
     config.validate()
     b, a = butterworth_digital(config.cutoff_hz, 1.0 / CONTROL_PERIOD)
-    joints = builder.AddNamedSystem(f"{name}_joint_filters", _joint_filters(b, a, CONTROL_PERIOD))
-    split = builder.AddNamedSystem(f"{name}_joint_split", Demultiplexer([3, 3]))
-    fk = builder.AddNamedSystem(f"{name}_forward_kinematics", ForwardKinematics(plant_model))
-    rates = builder.AddNamedSystem(
-        f"{name}_tip_rates", differencing_filter_system(b, a, CONTROL_PERIOD, channels=3))
-    rates_split = builder.AddNamedSystem(f"{name}_tip_rates_split", Demultiplexer([3, 3]))
-    # Unfiltered differences too (the thesis's Fig 6.3 identifies on these).
-    raw = builder.AddNamedSystem(
-        f"{name}_tip_rates_raw", differencing_filter_system([1.0], [1.0], CONTROL_PERIOD, channels=3))
-    raw_split = builder.AddNamedSystem(f"{name}_tip_rates_raw_split", Demultiplexer([3, 3]))
-    builder.Connect(fk.GetOutputPort("tip_pose"), raw.get_input_port())
-    builder.Connect(raw.get_output_port(), raw_split.get_input_port())
-    builder.Connect(joints.get_output_port(), split.get_input_port())
-    builder.Connect(split.get_output_port(0), fk.GetInputPort("joint_positions"))
-    builder.Connect(fk.GetOutputPort("tip_pose"), rates.get_input_port())
-    builder.Connect(rates.get_output_port(), rates_split.get_input_port())
-    return {
-        "joint_positions_measured": joints.get_input_port(),
-        "tip_pose": fk.GetOutputPort("tip_pose"),
-        "tip_velocity": rates_split.get_output_port(0),
-        "tip_acceleration": rates_split.get_output_port(1),
-        "joint_positions": split.get_output_port(0),
-        "joint_velocities": split.get_output_port(1),
-        "tip_velocity_raw": raw_split.get_output_port(0),
-        "tip_acceleration_raw": raw_split.get_output_port(1),
-    }
+
+    def build(builder):
+        joints = builder.AddNamedSystem(f"{name}_joint_filters",
+                                        _joint_filters(b, a, CONTROL_PERIOD))
+        split = builder.AddNamedSystem(f"{name}_joint_split", Demultiplexer([3, 3]))
+        fk = builder.AddNamedSystem(f"{name}_forward_kinematics", ForwardKinematics(plant_model))
+        rates = builder.AddNamedSystem(
+            f"{name}_tip_rates", differencing_filter_system(b, a, CONTROL_PERIOD, channels=3))
+        rates_split = builder.AddNamedSystem(f"{name}_tip_rates_split", Demultiplexer([3, 3]))
+        # Unfiltered differences too (the thesis's Fig 6.3 identifies on these).
+        raw = builder.AddNamedSystem(
+            f"{name}_tip_rates_raw",
+            differencing_filter_system([1.0], [1.0], CONTROL_PERIOD, channels=3))
+        raw_split = builder.AddNamedSystem(f"{name}_tip_rates_raw_split", Demultiplexer([3, 3]))
+        builder.Connect(fk.GetOutputPort("tip_pose"), raw.get_input_port())
+        builder.Connect(raw.get_output_port(), raw_split.get_input_port())
+        builder.Connect(joints.get_output_port(), split.get_input_port())
+        builder.Connect(split.get_output_port(0), fk.GetInputPort("joint_positions"))
+        builder.Connect(fk.GetOutputPort("tip_pose"), rates.get_input_port())
+        builder.Connect(rates.get_output_port(), rates_split.get_input_port())
+        return {
+            "joint_positions_measured": joints.get_input_port(),
+            "tip_pose": fk.GetOutputPort("tip_pose"),
+            "tip_velocity": rates_split.get_output_port(0),
+            "tip_acceleration": rates_split.get_output_port(1),
+            "joint_positions": split.get_output_port(0),
+            "joint_velocities": split.get_output_port(1),
+            "tip_velocity_raw": raw_split.get_output_port(0),
+            "tip_acceleration_raw": raw_split.get_output_port(1),
+        }
+    return AddSubdiagram(builder, name, build)

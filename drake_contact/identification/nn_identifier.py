@@ -4,7 +4,9 @@
 Inputs u = (s_x xe, s_v xe', s_a xe'') (scaled so their magnitudes match;
 styrofoam s_x = 1000, rubber 10000, s_v = 100), four bipolar-sigmoid hidden
 neurons f(h) = 2/(1 + e^-h) - 1 with biases, and a linear output scaled to
-newtons, f_hat = S (v . [1, f(h)]). Every 1 ms after the contact switch one
+newtons, f_hat = S (v . [1, f(h)]) (the thesis's output neuron is a sigmoid,
+as in its controller, section 5.2; one scaled to S = 20 N could not reach
+the 20-28 N the wall returns). Every 1 ms after the contact switch one
 gradient step on E = 1/2 (f - f_hat)^2 with learning rate eta (1e-4).
 
 Explicit coefficients by probing with "dummy" inputs at (x*, v*, a*):
@@ -33,7 +35,7 @@ import dataclasses as dc
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-from drake_contact.arm import CONTROL_PERIOD, CONTROL_SAMPLE_OFFSET
+from drake_contact.plant.arm import CONTROL_PERIOD, CONTROL_SAMPLE_OFFSET
 from drake_contact.errors import ScenarioError
 
 HIDDEN = 4

@@ -38,7 +38,7 @@ import numpy as np
 import yaml
 from pydrake.systems.framework import LeafSystem
 
-from drake_contact.arm import CONTROL_PERIOD, CONTROL_SAMPLE_LEAD
+from drake_contact.plant.arm import CONTROL_PERIOD, CONTROL_SAMPLE_LEAD
 from drake_contact.errors import ScenarioError
 from drake_contact.resources import models_dir
 

@@ -9,7 +9,7 @@ from pydrake.multibody.tree import JacobianWrtVariable
 from pydrake.common.value import Value
 from pydrake.systems.framework import BasicVector, LeafSystem, ValueProducer
 
-from drake_contact.arm import TIP_FRAME
+from drake_contact.plant.arm import TIP_FRAME
 from drake_contact.errors import require_finite
 
 

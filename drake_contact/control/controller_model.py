@@ -14,9 +14,9 @@ import dataclasses as dc
 import numpy as np
 from pydrake.multibody.tree import JacobianWrtVariable, RotationalInertia, SpatialInertia
 
-from drake_contact.arm import TIP_FRAME, MakeArmModel
+from drake_contact.plant.arm import TIP_FRAME, MakeArmModel
 from drake_contact.errors import ScenarioError
-from drake_contact.tip_kinematics import CalcTipPoseAndJacobian
+from drake_contact.plant.tip_kinematics import CalcTipPoseAndJacobian
 
 LINK_NAMES = ("link1", "link2", "link3")
 

@@ -41,8 +41,8 @@ import dataclasses as dc
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-from drake_contact.arm import CONTROL_PERIOD, CONTROL_SAMPLE_OFFSET
-from drake_contact.controller_model import ArmModel, ControllerModelConfig
+from drake_contact.plant.arm import CONTROL_PERIOD, CONTROL_SAMPLE_OFFSET
+from drake_contact.control.controller_model import ArmModel, ControllerModelConfig
 from drake_contact.errors import ScenarioError, require_finite
 
 CONTACT_LAWS = ("hybrid", "decoupled")

@@ -37,6 +37,7 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import AffineSystem, MatrixGain, Saturation
 from pydrake.systems.sensors import RotaryEncoders
 
+from drake_contact.blocks import AddSubdiagram
 from drake_contact.errors import ScenarioError
 
 #: Controller torque limits (N m) of Appendix E, joints 1-3.
@@ -180,23 +181,26 @@ class LuGreFriction(LeafSystem):
 
 def AddJointFriction(builder: DiagramBuilder, config: JointFrictionConfig, *,
                      mass_matrix_diagonal=None, time_step=None, name="joint_friction"):
-    """Adds the friction law; returns (input, output) ports.
+    """Adds the friction law; returns the added system (the LuGre
+    LeafSystem, or the regularized law's sub-diagram), named ``name``.
 
-    The input is the plant state [q; v] (6); the output the friction torque
-    (3, N m) to add to the plant's applied generalized force. The LuGre model
-    needs the joints' inertias (M's diagonal at q0) and the plant step.
+    Ports: ``plant_state`` (input, [q; v], 6) and ``torque`` (output, the
+    friction torque, 3, N m, to add to the plant's applied generalized
+    force). The LuGre model needs the joints' inertias (M's diagonal at q0)
+    and the plant step.
     """
     if config.model == "lugre":
-        friction = builder.AddNamedSystem(
-            name, LuGreFriction(config, mass_matrix_diagonal, time_step))
-        return friction.GetInputPort("plant_state"), friction.GetOutputPort("torque")
+        return builder.AddNamedSystem(name, LuGreFriction(config, mass_matrix_diagonal, time_step))
     levels = np.asarray(config.levels if config.enabled else [0.0] * 3, dtype=float)
     gain = np.zeros((3, 6))
     gain[:, 3:] = -np.diag(levels / config.regularization_velocity)
-    slope = builder.AddNamedSystem(f"{name}_slope", MatrixGain(gain))
-    clamp = builder.AddNamedSystem(name, Saturation(-levels, levels))
-    builder.Connect(slope.get_output_port(), clamp.get_input_port())
-    return slope.get_input_port(), clamp.get_output_port()
+
+    def build(inner):
+        slope = inner.AddNamedSystem(f"{name}_slope", MatrixGain(gain))
+        clamp = inner.AddNamedSystem(f"{name}_clamp", Saturation(-levels, levels))
+        inner.Connect(slope.get_output_port(), clamp.get_input_port())
+        return {"plant_state": slope.get_input_port(), "torque": clamp.get_output_port()}
+    return AddSubdiagram(builder, name, build)
 
 
 def AddTorqueSaturation(builder: DiagramBuilder, limits, *, name="torque_saturation"):
@@ -208,16 +212,22 @@ def AddTorqueSaturation(builder: DiagramBuilder, limits, *, name="torque_saturat
 def AddEncoders(builder: DiagramBuilder, config: EncoderConfig, zero_positions, *,
                 name="encoders"):
     """Adds incremental encoders zeroed at ``zero_positions`` (q0), reading
-    q from the plant state [q; v] (6); returns (input, output) ports.
+    q from the plant state [q; v] (6), as the sub-diagram ``name``; returns
+    it. Ports: ``plant_state`` (input, 6) and ``joint_positions_measured``
+    (output, 3, rad).
 
     A joint with 0 counts per revolution is passed through unquantized
     (RotaryEncoders requires a positive count, so we use a huge one)."""
     counts = [int(c) if c > 0 else 2**30 for c in config.counts_per_revolution]
     q0 = np.asarray(zero_positions, dtype=float)
-    shift = builder.AddNamedSystem(
-        f"{name}_zero", AffineSystem(D=np.hstack([np.eye(3), np.zeros((3, 3))]), y0=-q0))
-    encoders = builder.AddNamedSystem(name, RotaryEncoders(counts))
-    unshift = builder.AddNamedSystem(f"{name}_angle", AffineSystem(D=np.eye(3), y0=q0))
-    builder.Connect(shift.get_output_port(), encoders.get_input_port())
-    builder.Connect(encoders.get_output_port(), unshift.get_input_port())
-    return shift.get_input_port(), unshift.get_output_port()
+
+    def build(inner):
+        shift = inner.AddNamedSystem(
+            f"{name}_zero", AffineSystem(D=np.hstack([np.eye(3), np.zeros((3, 3))]), y0=-q0))
+        encoders = inner.AddNamedSystem(f"{name}_counts", RotaryEncoders(counts))
+        unshift = inner.AddNamedSystem(f"{name}_angle", AffineSystem(D=np.eye(3), y0=q0))
+        inner.Connect(shift.get_output_port(), encoders.get_input_port())
+        inner.Connect(encoders.get_output_port(), unshift.get_input_port())
+        return {"plant_state": shift.get_input_port(),
+                "joint_positions_measured": unshift.get_output_port()}
+    return AddSubdiagram(builder, name, build)
