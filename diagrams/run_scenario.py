@@ -8,7 +8,7 @@ a script (load a scenario, build the diagram, simulate, save).
 
 import argparse
 
-from drake_contact.runner import run, terminal_progress
+from drake_contact.app.runner import run, terminal_progress
 from drake_contact.scenario import load_scenario
 
 

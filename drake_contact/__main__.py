@@ -2,6 +2,6 @@
 
 import sys
 
-from drake_contact.cli import main
+from drake_contact.app.cli import main
 
 sys.exit(main())

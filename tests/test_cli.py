@@ -77,7 +77,8 @@ def test_malformed_file_and_unknown_name_exit_2(tmp_path):
 def test_divergence_exits_3_with_time_and_keeps_logs(tmp_path):
     out = tmp_path / "o"
     result = drake_contact("run", "push_constant", "--out", str(out), "--no-figures",
-                           "--set", "environment.stiffness=1e9", cwd=tmp_path)
+                           "--set", "environment.stiffness=1e9",
+                           "--set", "controller.push.start_time=0", cwd=tmp_path)
     assert result.returncode == 3
     assert re.search(r"diverged at t = 0\.\d+ s: the contact force", result.stderr)
     assert (out / "log.npz").is_file() and (out / "metrics.json").is_file()

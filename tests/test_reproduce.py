@@ -1,18 +1,25 @@
 """``drake-contact reproduce``: the quick reproduction scores every thesis
 result (SPEC §8) and passes; a Ctrl-C leaves logs and a partial report;
-scoring marks missing runs instead of failing on them."""
+scoring marks missing runs instead of failing on them; each claim's text
+lives once; the report embeds every figure and draws the diagram."""
 
+import dataclasses as dc
+import inspect
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
 import time
 
+import matplotlib.pyplot as plt
+import numpy as np
 import pytest
 
-from drake_contact.reproduce import JOBS, RESULTS, score, write_report
+from drake_contact.app import reproduce
+from drake_contact.app.reproduce import JOBS, RESULTS, score, write_report
 
 SCENARIOS = [job.scenario for job in JOBS]
 
@@ -79,6 +86,16 @@ def test_scoring_marks_missing_runs_as_not_run(tmp_path):
     assert "INTERRUPTED" in text and text.count("not run") >= len(RESULTS)
 
 
+def test_a_run_too_short_for_a_result_fails_that_row_without_crashing(tmp_path):
+    run_dir = tmp_path / "sensor_spectrum"
+    run_dir.mkdir()
+    (run_dir / "metrics.json").write_text(json.dumps({"status": "completed"}))
+    rows = {r.experiment: r for r in score(tmp_path)}
+    assert rows["sensor noise"].passed is False
+    assert "rest_noise_p99_n" in rows["sensor noise"].measured
+    assert rows["switch from approach to hybrid"].passed is None  # its runs are missing
+
+
 def _default_sigint():
     """A shell starts background jobs with SIGINT ignored, and an ignored
     signal stays ignored across exec (CI may run the suite that way). A
@@ -94,22 +111,98 @@ def test_ctrl_c_leaves_logs_and_a_partial_report(tmp_path):
         [sys.executable, "-m", "drake_contact", "reproduce", "--quick", "--out", str(tmp_path),
          "--jobs", "2"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
         start_new_session=True, preexec_fn=_default_sigint)
-    # Wait until the first two scenarios are simulating: they start at once;
-    # importing drake and building the diagram take about 5 s, and in --quick
-    # both run for more than 25 s.
-    first = [tmp_path / name / "run.log" for name in SCENARIOS[:2]]
+    # Wait until the first two scenarios are simulating: they start at once
+    # and write scenario.yaml just before building their diagrams (about a
+    # second); the longest, nn_small_lr, then simulates for its 85 s.
+    first = [tmp_path / name / "scenario.yaml" for name in SCENARIOS[:2]]
     deadline = time.monotonic() + 60
     while not all(p.exists() for p in first):
         assert time.monotonic() < deadline, "the first scenarios did not start"
         time.sleep(0.2)
-    time.sleep(12.0)
+    time.sleep(4.0)
     os.killpg(process.pid, signal.SIGINT)
     output, _ = process.communicate(timeout=120)
     assert process.returncode == 130, output
     report = (tmp_path / "report.md").read_text()
     assert "INTERRUPTED" in report
+    statuses = {}
     for name in SCENARIOS[:2]:
-        metrics = json.loads((tmp_path / name / "metrics.json").read_text())
-        assert metrics["status"] == "interrupted"
+        statuses[name] = json.loads((tmp_path / name / "metrics.json").read_text())["status"]
         assert (tmp_path / name / "log.npz").stat().st_size > 0
+    # The long one was cut short; the other may have finished first.
+    assert statuses[SCENARIOS[0]] == "interrupted", statuses
+    assert statuses[SCENARIOS[1]] in ("interrupted", "completed"), statuses
     assert not (tmp_path / SCENARIOS[-1] / "metrics.json").exists()
+
+
+def test_results_keep_the_thesis_order():
+    assert [result.claim.figures for result in RESULTS] == [
+        "4.2", "4.4", "3.5, 3.7", "6.1-6.3", "6.4-6.5", "6.1-6.5", "6.6-6.8", "6.6", "6.9",
+        "6.10", "6.11, 6.16", "6.12, 6.17", "6.13-6.14", "6.15", "6.17"]
+
+
+SENSOR_SPECTRUM_METRICS = {
+    "status": "completed", "rest_noise_p99_n": 2.0, "rest_noise_std_n": 0.8,
+    "psd_max_difference_below_100hz_db": 0.4, "line_480hz_above_floor_db": 12.0}
+
+
+def _fake_runs(out):
+    """A sensor_spectrum run that completed, with figures, and some PNGs of
+    other runs that no row names (one in a baseline folder)."""
+    figures = ["sensor_spectrum/fig3_5_psd.png", "sensor_spectrum/fig3_7_rc_gain.png",
+               "sensor_spectrum/fig4_4_raw_force.png", "sensor_spectrum/main_signals.png",
+               "identify_rubber/fig6_5_identification.png",
+               "identify_styrofoam/fig6_2_identification.png",
+               "identify_styrofoam/fig6_12_extra.png",
+               "nn_styrofoam/fig6_11_nn_output.png",
+               "nn_styrofoam/baseline/fig6_11_force_tracking.png",
+               "not_a_job/fig9_9_other.png"]
+    for figure in figures:
+        (out / figure).parent.mkdir(parents=True, exist_ok=True)
+        plt.imsave(out / figure, np.zeros((2, 2, 3)))
+    (out / "sensor_spectrum" / "metrics.json").write_text(json.dumps(SENSOR_SPECTRUM_METRICS))
+    return figures
+
+
+def test_every_row_states_its_claim_and_each_claim_is_written_once(tmp_path):
+    _fake_runs(tmp_path)
+    rows = score(tmp_path)
+    assert [r.passed for r in rows[1:3]] == [True, True]  # sensor noise, PSD: scored
+    assert rows[0].passed is None  # the others: not run
+    for row, result in zip(rows, RESULTS, strict=True):
+        assert (row.experiment, row.figures, row.thesis) == dc.astuple(result.claim)
+    source = inspect.getsource(reproduce)
+    for result in RESULTS:
+        assert source.count(repr(result.claim.thesis)) + source.count(
+            f"\"{result.claim.thesis}\"") == 1, result.claim
+    assert len({result.claim.experiment for result in RESULTS}) == len(RESULTS)
+
+
+@pytest.mark.parametrize("have_dot", [True, False])
+def test_report_embeds_every_figure_and_draws_the_diagram(tmp_path, monkeypatch, have_dot):
+    if have_dot and shutil.which("dot") is None:
+        pytest.skip("Graphviz's dot is not installed")
+    if not have_dot:
+        monkeypatch.setattr(shutil, "which", lambda name: None)
+        (tmp_path / "diagram.svg").write_text("stale")
+    figures = _fake_runs(tmp_path)
+    path = write_report(tmp_path, score(tmp_path), quick=True, status=dict.fromkeys(SCENARIOS))
+    markdown, page = path.read_text(), (tmp_path / "report.html").read_text()
+    for figure in figures:
+        assert markdown.count(f"]({figure})") == 1, figure
+        assert page.count(f"<img src='{figure}'") == 1, figure
+    assert "![Fig 6.5: identification](identify_rubber/fig6_5_identification.png)" in markdown
+    assert "Fig 6.11: force tracking (hybrid-only baseline)" in page
+    # Runs in JOBS order; in a run, figures in number order (6.2 before 6.12).
+    assert (page.index("fig6_2_identification") < page.index("fig6_12_extra")
+            < page.index("fig6_5_identification") < page.index("fig9_9_other"))
+    assert "name=force_sensor" in (tmp_path / "diagram.dot").read_text()
+    assert "[diagram.dot](diagram.dot)" in markdown
+    if have_dot:
+        assert (tmp_path / "diagram.svg").read_text().lstrip().startswith("<?xml")
+        assert "[diagram.svg](diagram.svg)" in markdown
+        assert page.index("<img src='diagram.svg'") < page.index("<table>")
+    else:
+        assert not (tmp_path / "diagram.svg").exists()
+        assert "apt-get install graphviz" in markdown and "apt-get install graphviz" in page
+        assert page.index("<pre>digraph") < page.index("<table>")

@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 from pydrake.geometry import MeshcatVisualizer
 
-from drake_contact.cli import main
-from drake_contact.diagram import MakeContactDiagram
-from drake_contact.runner import simulate
+from drake_contact.app.cli import main
+from drake_contact.diagram import MakeContactDiagram, leaf_systems
+from drake_contact.app.runner import MakeRunDiagram, simulate_scenario
 from drake_contact.scenario import load_scenario
-from drake_contact.visualization import ContactVisualizer, ContactVisualizerParams, new_meshcat
+from drake_contact.app.visualization import ContactVisualizer, ContactVisualizerParams, new_meshcat
 
 PARAMS = ContactVisualizerParams()
 FPS = 1.0 / PARAMS.publish_period
@@ -147,22 +147,24 @@ def test_no_visualizer_is_added_without_meshcat():
     scenario = load_scenario("push_constant")
 
     def systems(diagram):
-        return {type(s) for s in diagram.GetSystems()}
+        return {type(s) for s in leaf_systems(diagram)}
     drawing = {MeshcatVisualizer, ContactVisualizer}
     assert not drawing & systems(MakeContactDiagram(scenario))
-    assert drawing <= systems(MakeContactDiagram(scenario, meshcat=new_meshcat()))
+    assert not drawing & systems(MakeRunDiagram(scenario)[0])
+    assert drawing <= systems(MakeRunDiagram(scenario, meshcat=new_meshcat())[0])
 
 
 # --- A recorded run.
 
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory):
-    # push_constant touches at 0.046 s and settles at about 17 N by 0.5 s.
-    scenario = load_scenario("push_constant", duration=1.5)
+    # Pushing from the start, push_constant touches at 0.046 s and settles at
+    # about 17 N by 0.5 s.
+    scenario = load_scenario("push_constant", ["controller.push.start_time=0"], duration=1.5)
     html_path = tmp_path_factory.mktemp("playback") / "push_constant.html"
-    log, status, message, _ = simulate(scenario, record=html_path)
-    assert status == "completed", message
-    return scenario, log, html_path
+    result = simulate_scenario(scenario, record=html_path)
+    assert result.status == "completed", result.message
+    return scenario, result.log, html_path
 
 
 def test_recording_is_self_contained(recorded):
@@ -210,8 +212,9 @@ def test_recording_animates_the_arm_the_wall_and_the_force_as_logged(recorded):
 
 def test_a_recorded_run_is_the_same_run(recorded):
     scenario, log, _ = recorded
-    plain, status, _, _ = simulate(scenario)
-    assert status == "completed" and plain.keys() == log.keys()
+    result = simulate_scenario(scenario)
+    plain = result.log
+    assert result.status == "completed" and plain.keys() == log.keys()
     for key in plain:
         np.testing.assert_array_equal(plain[key], log[key], err_msg=key)
 

@@ -10,7 +10,10 @@ playback (``playback.html``). Then :data:`RESULTS`, the thesis's results of
 SPEC §8, are scored from the runs' ``metrics.json``: for each, what the thesis
 reports, what we measured, the ground truth, the tolerance we hold it to, and
 pass or fail. ``DIR/report.md`` and ``DIR/report.html`` show them with the
-figures embedded.
+figures embedded: the rows' figures first, then every other figure the runs
+wrote, by run. The report opens with a drawing of the ``nn_styrofoam``
+diagram (``DIR/diagram.dot``; ``DIR/diagram.svg`` when Graphviz's ``dot`` is
+installed).
 
 ``--quick`` shortens the long runs (:attr:`Job.quick_duration_s`) and skips
 the neural runs' hybrid-only baselines; every row is still scored. Ctrl-C
@@ -22,10 +25,12 @@ import dataclasses as dc
 import html
 import json
 import os
+import re
 import subprocess
 import sys
 import time
-from pathlib import Path
+from collections.abc import Callable
+from pathlib import Path, PurePosixPath
 
 
 @dc.dataclass
@@ -55,9 +60,32 @@ JOBS = [
 ]
 
 
+@dc.dataclass(frozen=True)
+class Claim:
+    """What the thesis reports for one result: the only copy of its text."""
+
+    experiment: str
+    # The thesis's figure numbers, e.g. "6.1-6.3".
+    figures: str
+    # What the thesis says it shows.
+    thesis: str
+
+
+@dc.dataclass
+class Score:
+    """What we measured for one claim."""
+
+    measured: str
+    truth: str
+    tolerance: str
+    passed: bool | None  # None: not run
+    # Figure files (relative to the report) that show it.
+    images: list[str] = dc.field(default_factory=list)
+
+
 @dc.dataclass
 class Row:
-    """One thesis result beside ours."""
+    """One thesis result beside ours: a claim's fields, then its score's."""
 
     experiment: str
     figures: str
@@ -68,6 +96,35 @@ class Row:
     passed: bool | None  # None: not run
     # Figure files (relative to the report) that show it.
     images: list[str] = dc.field(default_factory=list)
+
+    @classmethod
+    def of(cls, claim: Claim, score: Score) -> "Row":
+        return cls(**dc.asdict(claim), **dc.asdict(score))
+
+
+@dc.dataclass(frozen=True)
+class Result:
+    """A thesis claim and the scorer that checks it against the runs."""
+
+    claim: Claim
+    # Reads the runs' metrics (raising _Missing for a run that did not
+    # complete) and returns a Score.
+    scorer: Callable[["_Runs"], Score]
+
+
+#: The thesis's results (SPEC §8), in its order: each scorer below registers
+#: itself with its claim (:func:`_result`), so definition order is report order.
+RESULTS: list[Result] = []
+
+
+def _result(experiment, figures, thesis):
+    """Registers the decorated scorer in :data:`RESULTS` with its claim."""
+    claim = Claim(experiment, figures, thesis)
+
+    def register(scorer):
+        RESULTS.append(Result(claim, scorer))
+        return scorer
+    return register
 
 
 class _Missing(Exception):
@@ -106,11 +163,11 @@ def _time(t):
     return "never" if t is None else f"{t:.3f} s"
 
 
+@_result("switch from approach to hybrid", "4.2", "force transient at the 5 N switch")
 def _switch(runs):
     s, r = runs["identify_styrofoam"], runs["identify_rubber"]
     ok = all(m["mode_switches"] == 1 and m["impact_peak_force_n"] <= 40.0 for m in (s, r))
-    return Row(
-        "switch from approach to hybrid", "4.2", "force transient at the 5 N switch",
+    return Score(
         f"one switch each; peak {s['impact_peak_force_n']:.1f} N (styrofoam), "
         f"{r['impact_peak_force_n']:.1f} N (rubber), then 20 N held "
         f"(mean {s['force_mean_n']:.2f} / {r['force_mean_n']:.2f} N)",
@@ -118,28 +175,29 @@ def _switch(runs):
         runs.images("identify_styrofoam", "fig4_2_switch.png"))
 
 
+@_result("sensor noise", "4.4", "about +-2 N")
 def _noise(runs):
     m = runs["sensor_spectrum"]
     p99 = m["rest_noise_p99_n"]
-    return Row("sensor noise", "4.4", "about +-2 N",
-               f"+-{p99:.2f} N (99th percentile of |f| at rest), std {m['rest_noise_std_n']:.2f} N",
-               "0 N (at rest, no contact)", "+-1.5 to +-2.5 N", 1.5 <= p99 <= 2.5,
-               runs.images("sensor_spectrum", "fig4_4_raw_force.png"))
+    return Score(f"+-{p99:.2f} N (99th percentile of |f| at rest), "
+                 f"std {m['rest_noise_std_n']:.2f} N",
+                 "0 N (at rest, no contact)", "+-1.5 to +-2.5 N", 1.5 <= p99 <= 2.5,
+                 runs.images("sensor_spectrum", "fig4_4_raw_force.png"))
 
 
+@_result("PSD, unfiltered vs 190 Hz filtered", "3.5, 3.7",
+         "same below 120 Hz; a 480 Hz component")
 def _psd(runs):
     m = runs["sensor_spectrum"]
     diff, line = m["psd_max_difference_below_100hz_db"], m["line_480hz_above_floor_db"]
-    return Row("PSD, unfiltered vs 190 Hz filtered", "3.5, 3.7",
-               "same below 120 Hz; a 480 Hz component",
-               f"spectra within {diff:.2f} dB below 100 Hz; 480 Hz line (aliased) "
-               f"{line:.1f} dB above the floor",
-               "the sensor's 480 Hz DAC loop", "within 1 dB below 100 Hz; line > 6 dB",
-               diff < 1.0 and line > 6.0,
-               runs.images("sensor_spectrum", "fig3_5_psd.png", "fig3_7_rc_gain.png"))
+    return Score(f"spectra within {diff:.2f} dB below 100 Hz; 480 Hz line (aliased) "
+                 f"{line:.1f} dB above the floor",
+                 "the sensor's 480 Hz DAC loop", "within 1 dB below 100 Hz; line > 6 dB",
+                 diff < 1.0 and line > 6.0,
+                 runs.images("sensor_spectrum", "fig3_5_psd.png", "fig3_7_rc_gain.png"))
 
 
-def _identification_row(runs, material, experiment, figures, thesis, images, method):
+def _identification_score(runs, material, images, method):
     m = runs[f"identify_{material}"]
     truth = m["true_impedance"]["stiffness"]
 
@@ -156,23 +214,24 @@ def _identification_row(runs, material, experiment, figures, thesis, images, met
                 f"{_time(settle)}; the thesis's form K_e {_k(k(method))}, f / x "
                 f"{_k(m['stiffness_ratio_final_n_per_m'])} (both biased by the 5 N switch point)")
     ok = abs(rel) < tol_rel and settle is not None and settle <= tol_time
-    return Row(experiment, figures, thesis, measured, f"K_e = {_k(truth)}",
-               f"{ours} within {int(tol_rel * 100)} % by {tol_time:g} s", ok,
-               runs.images(f"identify_{material}", *images))
+    return Score(measured, f"K_e = {_k(truth)}",
+                 f"{ours} within {int(tol_rel * 100)} % by {tol_time:g} s", ok,
+                 runs.images(f"identify_{material}", *images))
 
 
+@_result("RLS, styrofoam", "6.1-6.3",
+         "K_e 7.2 k vs f/x 6.8 k (<6 % apart); settles within 0.12 s")
 def _rls_styrofoam(runs):
-    return _identification_row(runs, "styrofoam", "RLS, styrofoam", "6.1-6.3",
-                               "K_e 7.2 k vs f/x 6.8 k (<6 % apart); settles within 0.12 s",
-                               ["fig6_1_identification.png", "fig6_3_identification.png"], "rls")
+    return _identification_score(
+        runs, "styrofoam", ["fig6_1_identification.png", "fig6_3_identification.png"], "rls")
 
 
+@_result("RLS, rubber", "6.4-6.5", "K_e 44 k = f/x 44 k; settles within 0.05 s")
 def _rls_rubber(runs):
-    return _identification_row(runs, "rubber", "RLS, rubber", "6.4-6.5",
-                               "K_e 44 k = f/x 44 k; settles within 0.05 s",
-                               ["fig6_4_identification.png"], "rls")
+    return _identification_score(runs, "rubber", ["fig6_4_identification.png"], "rls")
 
 
+@_result("RLS M_e and B_e", "6.1-6.5", "M_e negative")
 def _rls_mass(runs):
     masses = {mat: runs[f"identify_{mat}"]["identified_impedance_rls_matched"]["mass"]
               for mat in ("styrofoam", "rubber")}
@@ -181,52 +240,50 @@ def _rls_mass(runs):
     damping = {mat: runs[f"identify_{mat}"]["identified_impedance_rls_matched"]["damping"]
                for mat in ("styrofoam", "rubber")}
     truth = {mat: runs[f"identify_{mat}"]["true_impedance"] for mat in ("styrofoam", "rubber")}
-    return Row("RLS M_e and B_e", "6.1-6.5", "M_e negative",
-               f"rls_matched M_e {masses['styrofoam']:.2f} / {masses['rubber']:.2f} kg, "
-               f"B_e {damping['styrofoam']:.0f} / {damping['rubber']:.0f} N s/m "
-               f"(styrofoam / rubber); the thesis's form M_e {thesis_form['styrofoam']:+.2f} / "
-               f"{thesis_form['rubber']:+.2f} kg",
-               f"M_e {truth['styrofoam']['mass']:g} kg, B_e {truth['styrofoam']['damping']:g} / "
-               f"{truth['rubber']['damping']:g} N s/m",
-               "M_e < 0 (the transient cannot resolve 10 g)",
-               all(v < 0 for v in masses.values()), [])
+    return Score(f"rls_matched M_e {masses['styrofoam']:.2f} / {masses['rubber']:.2f} kg, "
+                 f"B_e {damping['styrofoam']:.0f} / {damping['rubber']:.0f} N s/m "
+                 f"(styrofoam / rubber); the thesis's form M_e {thesis_form['styrofoam']:+.2f} / "
+                 f"{thesis_form['rubber']:+.2f} kg",
+                 f"M_e {truth['styrofoam']['mass']:g} kg, B_e {truth['styrofoam']['damping']:g} / "
+                 f"{truth['rubber']['damping']:g} N s/m",
+                 "M_e < 0 (the transient cannot resolve 10 g)",
+                 all(v < 0 for v in masses.values()), [])
 
 
+@_result("NN identification, styrofoam", "6.6-6.8", "K_e 6.6 k vs f/x 6.7 k; about 0.6 s to learn")
 def _nn_styrofoam(runs):
-    return _identification_row(runs, "styrofoam", "NN identification, styrofoam", "6.6-6.8",
-                               "K_e 6.6 k vs f/x 6.7 k; about 0.6 s to learn",
-                               ["fig6_7_identification.png", "fig6_6_identification.png",
-                                "fig6_8_nn_output_error.png"], "nn")
+    return _identification_score(
+        runs, "styrofoam", ["fig6_7_identification.png", "fig6_6_identification.png",
+                            "fig6_8_nn_output_error.png"], "nn")
 
 
+@_result("NN identification, smaller learning rate", "6.6",
+         "a smaller rate takes more time to learn")
 def _nn_slower(runs):
     m = runs["identify_styrofoam"]
     fast, slow = (m[f"identification_time_10pct_{n}_s"] for n in ("nn_offset", "nn_slow"))
     ok = fast is not None and (slow is None or slow > fast)
-    return Row("NN identification, smaller learning rate", "6.6",
-               "a smaller rate takes more time to learn",
-               f"within 10 % from {_time(slow)} at 2e-5 vs {_time(fast)} at 1e-4",
-               "K_e = 7.00 kN/m", "slower than at 1e-4", ok,
-               runs.images("identify_styrofoam", "fig6_6_identification.png"))
+    return Score(f"within 10 % from {_time(slow)} at 2e-5 vs {_time(fast)} at 1e-4",
+                 "K_e = 7.00 kN/m", "slower than at 1e-4", ok,
+                 runs.images("identify_styrofoam", "fig6_6_identification.png"))
 
 
+@_result("NN identification, rubber", "6.9", "K_e 56 k vs f/x 62 k; about 0.6 s")
 def _nn_rubber(runs):
-    return _identification_row(runs, "rubber", "NN identification, rubber", "6.9",
-                               "K_e 56 k vs f/x 62 k; about 0.6 s",
-                               ["fig6_9_identification.png"], "nn")
+    return _identification_score(runs, "rubber", ["fig6_9_identification.png"], "nn")
 
 
+@_result("hybrid only, K_fp = 0.25, no integral", "6.10", "cannot reach the desired force")
 def _hybrid_only(runs):
     s, r = runs["hybrid_p_only_styrofoam"], runs["hybrid_p_only_rubber"]
     ok = all(m["force_mean_abs_error_n"] > 2.0 for m in (s, r))
-    return Row("hybrid only, K_fp = 0.25, no integral", "6.10", "cannot reach the desired force",
-               f"mean |f - f_d| {s['force_mean_abs_error_n']:.2f} N (styrofoam), "
-               f"{r['force_mean_abs_error_n']:.2f} N (rubber)",
-               "f_d: 20 / 10 N square wave", "mean |f - f_d| > 2 N", ok,
-               runs.images("hybrid_p_only_styrofoam", "fig6_10_force_tracking.png"))
+    return Score(f"mean |f - f_d| {s['force_mean_abs_error_n']:.2f} N (styrofoam), "
+                 f"{r['force_mean_abs_error_n']:.2f} N (rubber)",
+                 "f_d: 20 / 10 N square wave", "mean |f - f_d| > 2 N", ok,
+                 runs.images("hybrid_p_only_styrofoam", "fig6_10_force_tracking.png"))
 
 
-def _nn_tracking(runs, names, experiment, figures, thesis, images):
+def _nn_tracking(runs, names, images):
     parts, ok = [], True
     for name in names:
         m = runs[name]
@@ -237,78 +294,53 @@ def _nn_tracking(runs, names, experiment, figures, thesis, images):
         parts.append(f"{name}: RMSE {rmse:.2f} N" +
                      (f" (hybrid part alone {baseline:.2f} N)" if baseline is not None else "") +
                      f", adapted in {_time(adapt)}")
-    return Row(experiment, figures, thesis, "; ".join(parts), "f_d (true force scored)",
-               "RMSE 10-20 s after contact <= 1.5 N; adaptation <= 10 s", ok,
-               [img for name, stem in zip(names, images) for img in runs.images(name, stem)])
+    return Score("; ".join(parts), "f_d (true force scored)",
+                 "RMSE 10-20 s after contact <= 1.5 N; adaptation <= 10 s", ok,
+                 [img for name, stem in zip(names, images) for img in runs.images(name, stem)])
 
 
+@_result("NN controller, styrofoam / rubber", "6.11, 6.16",
+         "follows the 10/20 N square wave about 10 s in")
 def _nn_square(runs):
-    return _nn_tracking(runs, ["nn_styrofoam", "nn_rubber"], "NN controller, styrofoam / rubber",
-                        "6.11, 6.16", "follows the 10/20 N square wave about 10 s in",
+    return _nn_tracking(runs, ["nn_styrofoam", "nn_rubber"],
                         ["fig6_11_force_tracking.png", "fig6_16_force_tracking.png"])
 
 
+@_result("NN controller, + 4 sin(pi t)", "6.12, 6.17", "follows")
 def _nn_sine(runs):
     return _nn_tracking(runs, ["nn_styrofoam_sine", "nn_rubber_sine"],
-                        "NN controller, + 4 sin(pi t)", "6.12, 6.17", "follows",
                         ["fig6_12_force_tracking.png", "fig6_17_force_tracking.png"])
 
 
+@_result("small learning rate 1e-5", "6.13-6.14", "lags at first, follows after a few minutes")
 def _small_lr(runs):
     m = runs["nn_small_lr"]
     first = m["force_rmse_windows_n"][0]
     adapt = m.get("adaptation_time_s")
     ok = first > 2.0 and adapt is not None and 30.0 <= adapt <= 200.0
-    return Row("small learning rate 1e-5", "6.13-6.14", "lags at first, follows after a few minutes",
-               f"first 5 s RMSE {first:.2f} N; adapted {_time(adapt)} after contact",
-               "f_d", "first window > 2 N; adaptation in 30-200 s", ok,
-               runs.images("nn_small_lr", "fig6_13_force_tracking.png"))
+    return Score(f"first 5 s RMSE {first:.2f} N; adapted {_time(adapt)} after contact",
+                 "f_d", "first window > 2 N; adaptation in 30-200 s", ok,
+                 runs.images("nn_small_lr", "fig6_13_force_tracking.png"))
 
 
+@_result("y and phi during force control", "6.15", "small non-zero errors")
 def _y_phi(runs):
     m = runs["nn_styrofoam"]
     y, phi = m["y_max_abs_error_m"], m["phi_max_abs_error_rad"]
     ok = 0 < y < 2e-3 and 0 < phi < 0.02
-    return Row("y and phi during force control", "6.15", "small non-zero errors",
-               f"max |y| {y * 1e3:.2f} mm, max |phi| {phi * 1e3:.1f} mrad (true pose, nn_styrofoam)",
-               "y_d = 0, phi_d = 0", "non-zero, |y| < 2 mm, |phi| < 20 mrad", ok,
-               runs.images("nn_styrofoam", "fig6_11_force_tracking.png"))
+    return Score(f"max |y| {y * 1e3:.2f} mm, max |phi| {phi * 1e3:.1f} mrad "
+                 "(true pose, nn_styrofoam)",
+                 "y_d = 0, phi_d = 0", "non-zero, |y| < 2 mm, |phi| < 20 mrad", ok,
+                 runs.images("nn_styrofoam", "fig6_11_force_tracking.png"))
 
 
+@_result("adaptation time", "6.17", "about 5 s")
 def _adaptation(runs):
     m = runs["nn_rubber_sine"]
     adapt = m.get("adaptation_time_s")
-    return Row("adaptation time", "6.17", "about 5 s",
-               f"{_time(adapt)} (first 5 s window with RMSE < 1.5 N, nn_rubber_sine)",
-               "f_d", "<= 10 s", adapt is not None and adapt <= 10.0,
-               runs.images("nn_rubber_sine", "fig6_17_force_tracking.png"))
-
-
-#: The thesis's results (SPEC §8), in its order: (experiment, figures,
-#: thesis claim, scorer). A scorer reads the runs and returns a Row.
-RESULTS = [
-    ("switch from approach to hybrid", "4.2", "force transient at the 5 N switch", _switch),
-    ("sensor noise", "4.4", "about +-2 N", _noise),
-    ("PSD, unfiltered vs 190 Hz filtered", "3.5, 3.7", "same below 120 Hz; 480 Hz component",
-     _psd),
-    ("RLS, styrofoam", "6.1-6.3", "K_e 7.2 k vs f/x 6.8 k; settles within 0.12 s",
-     _rls_styrofoam),
-    ("RLS, rubber", "6.4-6.5", "K_e 44 k = f/x 44 k; settles within 0.05 s", _rls_rubber),
-    ("RLS M_e and B_e", "6.1-6.5", "M_e negative", _rls_mass),
-    ("NN identification, styrofoam", "6.6-6.8", "K_e 6.6 k vs f/x 6.7 k; about 0.6 s",
-     _nn_styrofoam),
-    ("NN identification, smaller learning rate", "6.6", "takes more time to learn", _nn_slower),
-    ("NN identification, rubber", "6.9", "K_e 56 k vs f/x 62 k; about 0.6 s", _nn_rubber),
-    ("hybrid only, K_fp = 0.25, no integral", "6.10", "cannot reach the desired force",
-     _hybrid_only),
-    ("NN controller, styrofoam / rubber", "6.11, 6.16", "follows the square wave about 10 s in",
-     _nn_square),
-    ("NN controller, + 4 sin(pi t)", "6.12, 6.17", "follows", _nn_sine),
-    ("small learning rate 1e-5", "6.13-6.14", "lags at first, follows after a few minutes",
-     _small_lr),
-    ("y and phi during force control", "6.15", "small non-zero errors", _y_phi),
-    ("adaptation time", "6.17", "about 5 s", _adaptation),
-]
+    return Score(f"{_time(adapt)} (first 5 s window with RMSE < 1.5 N, nn_rubber_sine)",
+                 "f_d", "<= 10 s", adapt is not None and adapt <= 10.0,
+                 runs.images("nn_rubber_sine", "fig6_17_force_tracking.png"))
 
 
 def score(out_dir) -> list[Row]:
@@ -316,12 +348,16 @@ def score(out_dir) -> list[Row]:
     missing or did not complete is marked "not run"."""
     runs = _Runs(Path(out_dir))
     rows = []
-    for experiment, figures, thesis, scorer in RESULTS:
+    for result in RESULTS:
         try:
-            rows.append(scorer(runs))
+            scored = result.scorer(runs)
         except _Missing as missing:
-            rows.append(Row(experiment, figures, thesis, f"not run ({missing} did not complete)",
-                            "", "", None))
+            scored = Score(f"not run ({missing} did not complete)", "", "", None)
+        except KeyError as missing:
+            # A run too short for the result (e.g. no scoring window) lacks the metric.
+            scored = Score(f"not measured (metric {missing} missing: run too short?)", "", "",
+                           False)
+        rows.append(Row.of(result.claim, scored))
     return rows
 
 
@@ -376,10 +412,77 @@ def run_all(out_dir, *, quick=False, jobs=None, progress=print) -> dict:
     return status
 
 
-def write_report(out_dir, rows, *, quick, status, interrupted=False, wall_s=None) -> Path:
-    """Writes ``report.md`` and ``report.html`` in ``out_dir``; returns the
-    Markdown's path."""
+#: The scenario whose diagram the report draws: the neural controller's,
+#: which has every kind of block (arm, wall, sensor chain, DSP, controllers).
+DIAGRAM_SCENARIO = "nn_styrofoam"
+
+
+def write_diagram_drawing(out_dir) -> Path | None:
+    """Writes ``diagram.dot`` in ``out_dir`` (the :data:`DIAGRAM_SCENARIO`
+    diagram, one level of subsystems) and, when Graphviz's ``dot`` is
+    installed, ``diagram.svg``; returns the SVG's path, or None without
+    ``dot`` (a stale SVG is removed)."""
+    # pydrake is imported here, not at the top: the reproduce command's
+    # parent process otherwise only starts and scores runs.
+    from drake_contact.app.drawing import diagram_dot, render_svg
+    from drake_contact.diagram import MakeContactDiagram
+    from drake_contact.scenario import load_scenario
     out = Path(out_dir)
+    dot_text = diagram_dot(MakeContactDiagram(load_scenario(DIAGRAM_SCENARIO)))
+    (out / "diagram.dot").write_text(dot_text)
+    svg_text, svg = render_svg(dot_text), out / "diagram.svg"
+    if svg_text is None:
+        svg.unlink(missing_ok=True)
+        return None
+    svg.write_text(svg_text)
+    return svg
+
+
+def _natural(path: Path):
+    """Sort key putting fig6_2 before fig6_11."""
+    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", path.name)]
+
+
+def other_figures(out_dir, scenarios, shown) -> dict[str, list[str]]:
+    """Every ``*.png`` in ``out_dir/<scenario>/`` and its ``baseline/`` that is
+    not in ``shown``, as paths relative to ``out_dir``, by scenario folder:
+    ``scenarios`` first, then any other folder in ``out_dir``."""
+    out = Path(out_dir)
+    folders = list(scenarios) + sorted(
+        d.name for d in out.iterdir() if d.is_dir() and d.name not in scenarios)
+    figures = {}
+    for name in folders:
+        images = [p.relative_to(out).as_posix()
+                  for folder in (out / name, out / name / "baseline")
+                  for p in sorted(folder.glob("*.png"), key=_natural)]
+        images = [image for image in images if image not in shown]
+        if images:
+            figures[name] = images
+    return figures
+
+
+def figure_caption(image) -> str:
+    """A caption from a figure's file name: ``identify_rubber/fig6_5_identification.png``
+    -> "Fig 6.5: identification"; a hybrid-only baseline's says so."""
+    path = PurePosixPath(image)
+    match = re.fullmatch(r"fig(\d+)_(\d+)_(.+)", path.stem)
+    caption = (f"Fig {match[1]}.{match[2]}: {match[3].replace('_', ' ')}" if match
+               else path.stem.replace("_", " "))
+    return caption + (" (hybrid-only baseline)" if path.parent.name == "baseline" else "")
+
+
+def write_report(out_dir, rows, *, quick, status, interrupted=False, wall_s=None) -> Path:
+    """Writes ``report.md``, ``report.html`` and the diagram's drawing
+    (:func:`write_diagram_drawing`) in ``out_dir``; returns the Markdown's
+    path."""
+    out = Path(out_dir)
+    svg = write_diagram_drawing(out)
+    diagram_md = (f"The `{DIAGRAM_SCENARIO}` diagram: [diagram.svg](diagram.svg) "
+                  "(Graphviz DOT: [diagram.dot](diagram.dot))." if svg else
+                  f"The `{DIAGRAM_SCENARIO}` diagram as Graphviz DOT text: "
+                  "[diagram.dot](diagram.dot) (`apt-get install graphviz` renders it).")
+    shown = {image for r in rows for image in r.images}
+    others = other_figures(out, status, shown)
     passed = sum(r.passed is True for r in rows)
     failed = sum(r.passed is False for r in rows)
     missing = sum(r.passed is None for r in rows)
@@ -395,7 +498,7 @@ def write_report(out_dir, rows, *, quick, status, interrupted=False, wall_s=None
     def verdict(row):
         return {True: "PASS", False: "FAIL", None: "not run"}[row.passed]
 
-    md = [f"# {title}", "", summary, "", mode, "",
+    md = [f"# {title}", "", summary, "", mode, "", diagram_md, "",
           "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for r in rows:
         cells = [r.experiment, r.figures, r.thesis, r.measured, r.truth, r.tolerance, verdict(r)]
@@ -414,12 +517,26 @@ def write_report(out_dir, rows, *, quick, status, interrupted=False, wall_s=None
         if r.images:
             md += [f"### Fig {r.figures}: {r.experiment}", ""]
             md += [f"![{image}]({image})" for image in r.images] + [""]
+    if others:
+        md += ["## Every other figure, by run", ""]
+    for name, images in others.items():
+        md += [f"### {name}", ""]
+        md += [f"![{figure_caption(image)}]({image})" for image in images] + [""]
     path = out / "report.md"
     path.write_text("\n".join(md) + "\n")
 
     e = html.escape
-    body = [f"<h1>{e(title)}</h1>", f"<p>{e(summary)}</p>", f"<p>{e(mode)}</p>",
-            "<table><tr>" + "".join(f"<th>{e(h)}</th>" for h in header) + "</tr>"]
+    body = [f"<h1>{e(title)}</h1>", f"<p>{e(summary)}</p>", f"<p>{e(mode)}</p>"]
+    if svg:
+        body.append(f"<figure><img src='diagram.svg' alt='the {DIAGRAM_SCENARIO} diagram'>"
+                    f"<figcaption>The {DIAGRAM_SCENARIO} diagram, one level of subsystems "
+                    "(<a href='diagram.dot'>Graphviz DOT</a>)</figcaption></figure>")
+    else:
+        body.append(f"<p>The {DIAGRAM_SCENARIO} diagram as Graphviz DOT text "
+                    "(<a href='diagram.dot'>diagram.dot</a>); <code>apt-get install graphviz"
+                    "</code> renders it as a drawing here.</p>"
+                    f"<pre>{e((out / 'diagram.dot').read_text())}</pre>")
+    body += ["<table><tr>" + "".join(f"<th>{e(h)}</th>" for h in header) + "</tr>"]
     for r in rows:
         cls = {True: "pass", False: "fail", None: "missing"}[r.passed]
         cells = [r.experiment, r.figures, r.thesis, r.measured, r.truth, r.tolerance]
@@ -434,6 +551,13 @@ def write_report(out_dir, rows, *, quick, status, interrupted=False, wall_s=None
         for image in r.images:
             body.append(f"<figure><img src='{e(image)}' alt='{e(image)}'>"
                         f"<figcaption>Fig {e(r.figures)}: {e(r.experiment)}</figcaption></figure>")
+    if others:
+        body.append("<h2>Every other figure, by run</h2>")
+    for name, images in others.items():
+        body.append(f"<h3>{e(name)}</h3>")
+        for image in images:
+            body.append(f"<figure><img src='{e(image)}' alt='{e(image)}'>"
+                        f"<figcaption>{e(figure_caption(image))}</figcaption></figure>")
     style = ("body{font-family:sans-serif;max-width:1200px;margin:auto}"
              "table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:4px;"
              "vertical-align:top;font-size:13px}.pass{background:#cfc}.fail{background:#fcc}"

@@ -2,9 +2,11 @@
 
     drake-contact run SCENARIO --out DIR [--duration S] [--seed N] [--set k=v ...]
                       [--meshcat [--realtime-rate R]] [--record FILE.html]
+                      [--graphviz FILE.dot|FILE.svg]
     drake-contact reproduce [--quick] --out DIR [--jobs N]
     drake-contact list
-    drake-contact bench [SCENARIO] [--duration S]
+    drake-contact bench [SCENARIO] [--duration S] [--profile]
+    drake-contact sweep SWEEP --out DIR [--workers N | --scheduler ADDRESS] [--quick]
 
 Bad input exits with status 2 and one line naming the field and its allowed
 range; a diverged run exits with status 3 after writing its logs; Ctrl-C
@@ -48,17 +50,37 @@ def _build_parser():
                      help="with --meshcat: simulated s per wall s (default 1; 0 = unpaced)")
     run.add_argument("--record", metavar="FILE",
                      help="save a standalone HTML playback of the run (headless)")
+    run.add_argument("--graphviz", metavar="FILE",
+                     help="draw the scenario's diagram to FILE: Graphviz DOT text (.dot) or, "
+                          "with Graphviz's dot installed, an SVG (.svg)")
     reproduce = commands.add_parser(
         "reproduce", help="run every thesis scenario; write the figures and a scored report")
     reproduce.add_argument("--out", required=True, help="output folder")
     reproduce.add_argument("--quick", action="store_true",
-                           help="shorter long runs, no baselines (about 3 min on 2 cores)")
+                           help="shorter long runs, no baselines (about 80 s on 2 cores)")
     reproduce.add_argument("--jobs", type=int, help="processes at a time (default: one per core)")
     commands.add_parser("list", help="list the bundled scenarios")
     bench = commands.add_parser(
-        "bench", help="time the floor (plant, wall, joint physics) and a scenario; print the ratio")
-    bench.add_argument("scenario", nargs="?", default="nn_styrofoam")
-    bench.add_argument("--duration", type=float, help="simulated time of the scenario (s)")
+        "bench", help="time the plant floor, the physics (plant, wall, friction, tip "
+                      "kinematics) and a scenario; print us/step and their ratios")
+    bench.add_argument("scenario", nargs="?", default="nn_styrofoam",
+                       help="a scenario file, or a bundled scenario's name (default nn_styrofoam)")
+    bench.add_argument("--duration", type=float,
+                       help="simulated time of every timed run (s; default the scenario's, "
+                            "at most 20)")
+    bench.add_argument("--profile", action="store_true",
+                       help="also run the scenario once under cProfile: us/step per Python system")
+    sweep = commands.add_parser(
+        "sweep", help="run a parameter sweep on a Dask cluster; write results.csv, maps, sweep.html")
+    sweep.add_argument("sweep", help="a sweep file, or a bundled sweep's name")
+    sweep.add_argument("--out", required=True, help="output folder (rerun it to resume)")
+    where = sweep.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int,
+                       help="worker processes of a local cluster (default: one per core)")
+    where.add_argument("--scheduler", metavar="ADDRESS",
+                       help="a running Dask scheduler, e.g. tcp://10.0.0.5:8786")
+    sweep.add_argument("--quick", action="store_true",
+                       help="the sweep's short version (its quick: section)")
     return parser
 
 
@@ -72,22 +94,38 @@ def _cmd_list(args):
 
 
 def _cmd_bench(args):
-    from drake_contact.bench import bench
-    from drake_contact.scenario import load_scenario
-    bench(load_scenario(args.scenario, duration=args.duration))
+    from drake_contact.app.bench import bench, load_bench_scenario, profile_scenario
+    from drake_contact.errors import SimulationDiverged
+    scenario = load_bench_scenario(args.scenario, duration=args.duration)
+    try:
+        print(bench(scenario, name=args.scenario).format(), flush=True)
+        if args.profile:
+            print()
+            print(profile_scenario(scenario, name=args.scenario).format())
+    except SimulationDiverged as e:
+        print(f"drake-contact: {e}", file=sys.stderr)
+        return EXIT_DIVERGED
+    except KeyboardInterrupt:
+        print("drake-contact: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
     return 0
 
 
 def _cmd_run(args):
-    from drake_contact.runner import run, terminal_progress
+    from drake_contact.app.runner import run, terminal_progress
     from drake_contact.scenario import load_scenario
-    from drake_contact.visualization import check_record_path, new_meshcat
+    from drake_contact.app.visualization import check_record_path, new_meshcat
+    from drake_contact.app.drawing import check_diagram_path, write_diagram
+    from drake_contact.diagram import MakeContactDiagram
     scenario = load_scenario(args.scenario, args.set, duration=args.duration, seed=args.seed)
     if not args.realtime_rate >= 0:
         raise ScenarioError(f"--realtime-rate = {args.realtime_rate} is out of range: must be >= 0")
     meshcat = None
     if args.record:
         check_record_path(args.record)  # before a Meshcat URL is printed
+    if args.graphviz:
+        check_diagram_path(args.graphviz)  # before building
+        write_diagram(MakeContactDiagram(scenario), args.graphviz)
     if args.meshcat:
         meshcat = new_meshcat()
         print(f"Meshcat: {meshcat.web_url()}", flush=True)
@@ -98,7 +136,10 @@ def _cmd_run(args):
     print(f"{result.status}: {m['simulated_time_s']:.3f} s simulated in {m['wall_time_s']:.2f} s "
           f"(real-time factor {m['realtime_factor']:.2f}, {m['us_per_step']:.1f} us/step); "
           f"peak force {m['peak_force_n']:.4g} N; wrote {args.out}"
-          + (f" and {args.record}" if args.record else ""))
+          + (f" and {args.record}" if args.record else "")
+          + (f" and {args.graphviz}" if args.graphviz else ""))
+    for warning in m.get("warnings", []):
+        print(f"drake-contact: warning: {warning}", file=sys.stderr)
     if result.status == "diverged":
         print(f"drake-contact: {result.message}", file=sys.stderr)
         return EXIT_DIVERGED
@@ -109,7 +150,7 @@ def _cmd_run(args):
 
 
 def _cmd_reproduce(args):
-    from drake_contact.reproduce import reproduce
+    from drake_contact.app.reproduce import reproduce
     if args.jobs is not None and args.jobs < 1:
         raise ScenarioError(f"--jobs = {args.jobs} is out of range: must be >= 1")
     rows, interrupted = reproduce(args.out, quick=args.quick, jobs=args.jobs,
@@ -123,11 +164,24 @@ def _cmd_reproduce(args):
     return EXIT_FAILED if failed else 0
 
 
+def _cmd_sweep(args):
+    from drake_contact.app.sweep import load_sweep, run_sweep, summary_lines, terminal_progress
+    if args.workers is not None and args.workers < 1:
+        raise ScenarioError(f"--workers = {args.workers} is out of range: must be >= 1")
+    sweep = load_sweep(args.sweep, quick=args.quick)
+    result = run_sweep(sweep, args.out, workers=args.workers, scheduler=args.scheduler,
+                       progress=terminal_progress())
+    for line in summary_lines(sweep, result):
+        print(line)
+    print(f"wrote {args.out}/results.csv and {args.out}/sweep.html")
+    return EXIT_INTERRUPTED if result.interrupted else 0
+
+
 def main(argv=None) -> int:
     args = _build_parser().parse_args(argv)
     try:
         return {"run": _cmd_run, "list": _cmd_list, "bench": _cmd_bench,
-                "reproduce": _cmd_reproduce}[args.command](args)
+                "reproduce": _cmd_reproduce, "sweep": _cmd_sweep}[args.command](args)
     except ScenarioError as e:
         print(f"drake-contact: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT

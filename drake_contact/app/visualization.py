@@ -28,7 +28,6 @@ playback (Drake inlines the viewer's JavaScript: no network needed).
 ``--record FILE`` saves the playback (headless; works without a browser).
 """
 
-import copy
 import dataclasses as dc
 import logging
 import os
@@ -40,6 +39,7 @@ from pydrake.geometry import (
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.systems.framework import LeafSystem
 
+from drake_contact.diagram import leaf_systems
 from drake_contact.errors import ScenarioError
 
 
@@ -179,20 +179,23 @@ class ContactVisualizer(LeafSystem):
         m.SetProperty(path["force"], "visible", bool(f > 0.0), time_in_recording)
 
 
-def AddContactVisualization(builder, scene_graph, meshcat: Meshcat, *, tip_state, penetration,
-                            contact_force, surface_x: float,
+def AddContactVisualization(builder, station, meshcat: Meshcat, *,
                             params: ContactVisualizerParams | None = None):
-    """Adds the arm's MeshcatVisualizer and a :class:`ContactVisualizer`
-    wired to the given output ports; both publish at ``params.publish_period``.
-    Returns (meshcat_visualizer, contact_visualizer)."""
+    """Adds the arm's MeshcatVisualizer (on the station's ``query_object``)
+    and a :class:`ContactVisualizer` wired to its true tip state,
+    penetration and contact force; both publish at ``params.publish_period``.
+    ``station`` is a ContactStation already in ``builder``. Returns
+    (meshcat_visualizer, contact_visualizer)."""
     params = params or ContactVisualizerParams()
     arm = MeshcatVisualizer.AddToBuilder(
-        builder, scene_graph, meshcat, MeshcatVisualizerParams(publish_period=params.publish_period))
+        builder, station.GetOutputPort("query_object"), meshcat,
+        MeshcatVisualizerParams(publish_period=params.publish_period))
     contact = builder.AddNamedSystem(
-        "contact_visualizer", ContactVisualizer(meshcat, surface_x, params))
-    builder.Connect(tip_state, contact.GetInputPort("tip_state"))
-    builder.Connect(penetration, contact.GetInputPort("penetration"))
-    builder.Connect(contact_force, contact.GetInputPort("contact_force"))
+        "contact_visualizer",
+        ContactVisualizer(meshcat, station.scenario.environment.surface_x, params))
+    for port, signal in (("tip_state", "tip_state_true"), ("penetration", "penetration_true"),
+                         ("contact_force", "contact_force_true")):
+        builder.Connect(station.GetOutputPort(signal), contact.GetInputPort(port))
     return arm, contact
 
 
@@ -237,7 +240,6 @@ def start_recording(diagram, *, live: bool):
     the ContactVisualizer, which draws into the same Meshcat). ``live``:
     also send each frame to connected browsers while recording. Returns the
     MeshcatVisualizers (none if the diagram has no Meshcat)."""
-    from drake_contact.runner import leaf_systems  # runner imports this module
     visualizers = [s for s in leaf_systems(diagram) if isinstance(s, MeshcatVisualizer)]
     for visualizer in visualizers:
         visualizer.DeleteRecording()  # a reused Meshcat: drop an earlier run's frames
@@ -259,15 +261,3 @@ def finish_recording(visualizers, meshcat: Meshcat, html_path=None):
     visualizers[0].PublishRecording()
     if html_path is not None:
         Path(html_path).write_text(meshcat.StaticHtml(), encoding="utf-8")
-
-
-def record_playback(scenario, html_path, *, duration=None, meshcat=None):
-    """Simulates ``scenario`` (for ``duration`` s if given) and writes its
-    standalone HTML playback to ``html_path``; no logs or figures. Returns
-    (status, message) as :func:`drake_contact.runner.simulate` reports them."""
-    from drake_contact.runner import simulate
-    if duration is not None:
-        scenario = copy.deepcopy(scenario)
-        scenario.simulation.duration = float(duration)
-    _, status, message, _ = simulate(scenario, meshcat=meshcat, record=html_path)
-    return status, message

@@ -1,0 +1,283 @@
+"""A run's metrics: numbers against the ground truth, from its log.
+
+:func:`compute_metrics` is what ``metrics.json`` holds: timing, peak force,
+steady-state stiffness, sensor noise and spectra, force and position tracking
+after the contact switch, adaptation, identification (each identifier's final
+M_e, B_e, K_e, its relative errors and settling times), and warnings.
+
+Identification: each identifier's estimate is logged as ``impedance_<name>``
+(N x 3: M_e, B_e, K_e) and scored as ``identified_impedance_<name>``,
+``identification_time_<name>_s`` (time after the switch from which the K_e
+estimate stays within 5 % of the truth), ``identification_error_<name>``
+(relative errors), and the same time for 10 % as
+``identification_time_10pct_<name>_s`` (the neural identifier's bar).
+``identification_error_1s_<name>`` is the same relative error of the
+estimate 1 s after the switch (against the truth at that sample; each entry
+None where the truth is 0 or the log ends sooner).
+``stiffness_ratio`` is the thesis's "measured" stiffness f / xe from the
+filtered force and the estimated displacement since the switch.
+
+Stability (for parameter sweeps), in runs with a ``mode`` log:
+``contact_losses`` counts the controller's returns from contact (mode 1) to
+approach (mode 0), all of which follow the first switch;
+``first_contact_loss_s`` is the first one's time after the switch (None if
+none). ``final_force_rmse_n`` is the force RMSE (true force vs f_d) over the
+run's last ``scoring.rmse_window_s``, [t_end - width, t_end), provided that
+window starts at or after the switch (else None). The rule:
+
+    stable  <=>  a contact switch happened,
+                 contact_losses == 0, and
+                 final_force_rmse_n <= STABLE_RMSE_N (2 N).
+
+A run too short for a full window after the switch is therefore not stable:
+unknown is not stable. ``stable`` is None without a ``mode`` log. It is
+computed from the log alone, before the runner sets ``status``; a diverged
+run's log is truncated at the bad sample and usually fails the rule, but a
+diverged run is never stable: a sweep must read ``status == "completed" and
+stable``.
+"""
+
+import copy
+
+import numpy as np
+
+from drake_contact.app.spectra import sensor_metrics
+from drake_contact.plant.arm import CONTROL_PERIOD
+from drake_contact.scenario import Scenario
+
+#: Identification settling bars: K_e within 5 % (RLS), 10 % (the neural
+#: identifier, issue 5).
+SETTLE_TOLERANCE = 0.05
+SETTLE_TOLERANCE_NN = 0.10
+
+#: A true contact force above this (N) inside the DSP's tare window is
+#: tared away as if it were the sensor's offset.
+TARE_CONTACT_FORCE_N = 0.5
+
+#: ``stable`` needs ``final_force_rmse_n`` at or below this (N).
+STABLE_RMSE_N = 2.0
+
+#: ``identification_error_1s_<name>`` scores the estimate this long after
+#: the switch (s).
+EARLY_IDENTIFICATION_S = 1.0
+
+
+def compute_metrics(scenario: Scenario, log: dict, wall_s: float) -> dict:
+    """Timing, peak force, ground truth and steady-state contact numbers."""
+    t = log["t"]
+    simulated = float(t[-1]) if len(t) else 0.0
+    steps = simulated / scenario.arm.time_step
+    env = scenario.environment
+    force = log["contact_force_true"]
+    penetration = log["penetration_true"]
+    metrics = {
+        "simulated_time_s": simulated,
+        "wall_time_s": wall_s,
+        "realtime_factor": simulated / wall_s if wall_s > 0 else float("nan"),
+        "us_per_step": wall_s / steps * 1e6 if steps > 0 else float("nan"),
+        "plant_time_step_s": scenario.arm.time_step,
+        "peak_force_n": float(np.max(force)) if len(force) else 0.0,
+        "true_impedance": {"mass": env.mass, "damping": env.damping, "stiffness": env.stiffness},
+    }
+    window = t >= simulated - scenario.simulation.settle_window
+    contact = window & (penetration > 0)
+    if contact.any():
+        f_mean = float(np.mean(force[contact]))
+        x_mean = float(np.mean(penetration[contact]))
+        K_true = float(np.mean(log["true_impedance"][contact, 2]))
+        metrics["steady_force_n"] = f_mean
+        metrics["steady_penetration_m"] = x_mean
+        metrics["steady_stiffness_ratio_n_per_m"] = f_mean / x_mean
+        metrics["steady_stiffness_error"] = f_mean / x_mean / K_true - 1.0
+    metrics.update(sensor_metrics(log, scenario.dsp.tare_window_s))
+    metrics.update(tracking_metrics(log, scenario))
+    metrics.update(stability_metrics(log, scenario.scoring))
+    metrics.update(identification_metrics(log, scenario.identifiers))
+    warnings = tare_warnings(log, scenario)
+    if warnings:
+        metrics["warnings"] = warnings
+    return metrics
+
+
+def tare_warnings(log: dict, scenario: Scenario) -> list[str]:
+    """A warning, with the numbers, when the tip already presses the wall
+    during the DSP's tare window: the measured force is then offset by the
+    force tared away."""
+    t, force = log["t"], log["contact_force_true"]
+    window = scenario.dsp.tare_window_s
+    pressed = (t < window) & (force > TARE_CONTACT_FORCE_N)
+    if not pressed.any():
+        return []
+    during = force[t < window]
+    return [f"contact began at t = {t[np.argmax(pressed)]:.3f} s, inside the DSP's tare window "
+            f"(dsp.tare_window_s = {window:g} s): the tare averaged a true force of "
+            f"{np.mean(during):.2f} N (up to {np.max(during):.2f} N) into the offset, so "
+            "force_measured and force_filtered read low by about that much; start the "
+            "contact after the window or shorten it"]
+
+
+def tracking_metrics(log: dict, scenario: Scenario) -> dict:
+    """Contact switch and force/position tracking against ground truth, in
+    the scoring window after the first switch (runs with a ``mode`` log)."""
+    if "mode" not in log or not np.any(log["mode"] > 0):
+        return {"contact_time_s": None} if "mode" in log else {}
+    t = log["t"]
+    i_contact = int(np.argmax(log["mode"] > 0))
+    t_contact = float(t[i_contact])
+    s = scenario.scoring
+    end = t[-1] + 1.0 if s.window_end_s == 0 else t_contact + s.window_end_s
+    window = (t >= t_contact + s.window_start_s) & (t < end)
+    out = {
+        "contact_time_s": t_contact,
+        "mode_switches": int(np.sum(np.abs(np.diff(log["mode"])) > 0)),
+        "impact_peak_force_n": float(np.max(log["contact_force_true"][
+            (t >= t_contact) & (t < t_contact + s.impact_window_s)])),
+        "scoring_window_s": [float(t_contact + s.window_start_s), float(min(end, t[-1]))],
+    }
+    if window.sum() > 0:
+        force = log["contact_force_true"][window]
+        error = force - log["force_desired"][window]
+        hybrid = scenario.controller.hybrid
+        out.update({
+            "force_mean_n": float(np.mean(force)),
+            "force_desired_mean_n": float(np.mean(log["force_desired"][window])),
+            "force_rmse_n": float(np.sqrt(np.mean(error**2))),
+            "force_mean_abs_error_n": float(np.mean(np.abs(error))),
+            "y_max_abs_error_m": float(np.max(np.abs(log["tip_pose_true"][window, 1]
+                                                      - hybrid.y_desired))),
+            "phi_max_abs_error_rad": float(np.max(np.abs(log["tip_pose_true"][window, 2]
+                                                         - hybrid.phi_desired))),
+        })
+    out.update(adaptation_metrics(log, t_contact, s))
+    return out
+
+
+#: adaptation_time_s slides its window by this much (s).
+ADAPTATION_STEP_S = 0.5
+
+
+def adaptation_metrics(log: dict, t_contact: float, scoring) -> dict:
+    """Force RMSE (true force vs f_d) per ``rmse_window_s`` window from the
+    switch, and the time from the switch to the end of the first sliding
+    window whose RMSE is below ``adaptation_rmse_n`` (None if none is)."""
+    t = log["t"]
+    error = log["contact_force_true"] - log["force_desired"]
+    width = scoring.rmse_window_s
+
+    def rmse(start):
+        window = (t >= t_contact + start - 1e-9) & (t < t_contact + start + width - 1e-9)
+        return float(np.sqrt(np.mean(error[window] ** 2)))
+
+    span = t[-1] + CONTROL_PERIOD - t_contact  # logged time after the switch
+    whole = int(np.floor(span / width + 1e-9))
+    windows = [rmse(k * width) for k in range(whole)]
+    adaptation = None
+    for k in range(int(np.floor((span - width) / ADAPTATION_STEP_S + 1e-9)) + 1):
+        if rmse(k * ADAPTATION_STEP_S) < scoring.adaptation_rmse_n:
+            adaptation = k * ADAPTATION_STEP_S + width
+            break
+    return {"force_rmse_windows_n": windows, "adaptation_time_s": adaptation}
+
+
+def stability_metrics(log: dict, scoring) -> dict:
+    """Contact losses after the first switch, the force RMSE over the run's
+    last ``rmse_window_s`` and the ``stable`` verdict (see the module
+    docstring); only ``stable`` (None) without a ``mode`` log."""
+    if "mode" not in log:
+        return {"stable": None}
+    t = log["t"]
+    in_contact = log["mode"] > 0
+    if not in_contact.any():
+        return {"contact_losses": 0, "first_contact_loss_s": None,
+                "final_force_rmse_n": None, "stable": False}
+    t_contact = float(t[np.argmax(in_contact)])
+    # A loss is a sample in approach right after one in contact.
+    losses = np.flatnonzero(in_contact[:-1] & ~in_contact[1:]) + 1
+    end = t[-1] + CONTROL_PERIOD  # logged time, as in adaptation_metrics
+    start = end - scoring.rmse_window_s
+    final_rmse = None
+    if start >= t_contact - 1e-9:
+        window = (t >= start - 1e-9) & (t < end - 1e-9)
+        error = log["contact_force_true"][window] - log["force_desired"][window]
+        final_rmse = float(np.sqrt(np.mean(error**2)))
+    return {
+        "contact_losses": len(losses),
+        "first_contact_loss_s": float(t[losses[0]] - t_contact) if len(losses) else None,
+        "final_force_rmse_n": final_rmse,
+        "stable": bool(len(losses) == 0 and final_rmse is not None
+                       and final_rmse <= STABLE_RMSE_N),
+    }
+
+
+def add_stiffness_ratio(log: dict) -> None:
+    """Adds ``stiffness_ratio`` (f / xe, N/m; NaN before contact or where xe
+    is under 20 um) and ``displacement_measured`` (xe, m) to a log."""
+    if "contact_info" not in log:
+        return
+    info = log["contact_info"]
+    in_contact = info[:, 0] >= 0
+    xe = np.where(in_contact, log["tip_pose_measured"][:, 0] - info[:, 1], np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.where(np.abs(xe) > 2e-5, log["force_filtered"] / xe, np.nan)
+    log["displacement_measured"] = xe
+    log["stiffness_ratio"] = ratio
+
+
+def settling_time(t, ratio, after, tolerance):
+    """Time from the first ``after`` sample from which |ratio - 1| stays below
+    ``tolerance`` (s); None if the last sample is outside."""
+    within = np.abs(ratio - 1) < tolerance
+    if not within[-1]:
+        return None
+    outside = np.flatnonzero(after & ~within)
+    start = t[np.argmax(after)]
+    return 0.0 if len(outside) == 0 else float(t[outside[-1] + 1] - start)
+
+
+def relative_errors(estimate, truth) -> dict:
+    """(estimate - truth) / truth per M_e, B_e, K_e; None where the truth is
+    0 (or either is not finite)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = (np.asarray(estimate) - truth) / np.where(truth != 0, truth, np.nan)
+    return {key: float(r) if np.isfinite(r) else None
+            for key, r in zip(("mass", "damping", "stiffness"), rel)}
+
+
+def identification_metrics(log: dict, identifiers) -> dict:
+    """Final estimates, settling times and relative errors against truth."""
+    if not identifiers or "contact_info" not in log or not np.any(log["contact_info"][:, 0] >= 0):
+        return {}
+    t = log["t"]
+    t_contact = float(log["contact_info"][-1, 0])
+    truth = log["true_impedance"][-1]
+    early = t >= t_contact + EARLY_IDENTIFICATION_S - 1e-9
+    i_early = int(np.argmax(early)) if early.any() else None
+    out = {}
+    for config in identifiers:
+        est = log[f"impedance_{config.name}"]
+        final = est[-1]
+        out[f"identified_impedance_{config.name}"] = {
+            "mass": float(final[0]), "damping": float(final[1]), "stiffness": float(final[2])}
+        out[f"identification_error_{config.name}"] = relative_errors(final, truth)
+        out[f"identification_error_1s_{config.name}"] = (
+            relative_errors(est[i_early], log["true_impedance"][i_early])
+            if i_early is not None else dict.fromkeys(("mass", "damping", "stiffness")))
+        after = t >= t_contact
+        for tolerance, key in ((SETTLE_TOLERANCE, f"identification_time_{config.name}_s"),
+                               (SETTLE_TOLERANCE_NN, f"identification_time_10pct_{config.name}_s")):
+            out[key] = settling_time(t, est[:, 2] / log["true_impedance"][:, 2], after, tolerance)
+    ratio = log.get("stiffness_ratio")
+    if ratio is not None:
+        late = (t >= t[-1] - 1.0) & np.isfinite(ratio)
+        if late.any():
+            out["stiffness_ratio_final_n_per_m"] = float(np.mean(ratio[late]))
+    return out
+
+
+def baseline_scenario(scenario: Scenario) -> Scenario:
+    """The hybrid part alone of a neural-controller scenario: the same arm,
+    environment, seed and gains with the compensator removed (Fig 6.10)."""
+    baseline = copy.deepcopy(scenario)
+    baseline.controller.name = "hybrid"
+    baseline.description = f"hybrid part alone of: {scenario.description}"
+    return baseline

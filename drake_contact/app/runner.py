@@ -1,0 +1,314 @@
+"""Simulating a contact diagram and writing what a run produces.
+
+Building is separate from running. :func:`MakeContactDiagram` builds the
+station; :func:`AddSignalLoggers` adds a logger per signal it exports; the
+user may add systems and loggers of their own; :func:`simulate` then runs
+any diagram holding a station and its :class:`SignalLoggers`, with the
+divergence checks, and returns a :class:`RunResult` (logs, metrics, status).
+:func:`simulate_scenario` does all of that for one scenario, and :func:`run`
+also writes into an output folder:
+
+* ``scenario.yaml``: the fully resolved scenario, overrides applied;
+* ``log.npz``: 1 kHz signals keyed by name (each station signal's log keys),
+  plus ``t``;
+* ``metrics.json``: :func:`drake_contact.app.metrics.compute_metrics`;
+* ``*.png``: figures of the main signals.
+
+A run that diverges (non-finite state, or a contact force above
+``simulation.force_limit``) or is interrupted (Ctrl-C) still writes all of
+these up to the last logged sample; ``metrics.json`` says why it stopped.
+"""
+
+import dataclasses as dc
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import LogVectorOutput
+
+from drake_contact.app.metrics import add_stiffness_ratio, baseline_scenario, compute_metrics
+from drake_contact.app.visualization import (
+    AddContactVisualization, check_record_path, finish_recording, new_meshcat, start_recording)
+from drake_contact.diagram import ContactStation, MakeContactDiagram, SeedNoise
+from drake_contact.errors import SimulationDiverged
+from drake_contact.plant.arm import CONTROL_PERIOD
+from drake_contact.scenario import Scenario, dump_scenario
+
+#: Simulated seconds between divergence checks and progress reports.
+CHUNK_S = 0.1
+
+
+@dc.dataclass
+class RunResult:
+    """What :func:`simulate` and :func:`run` return."""
+
+    # 1 kHz logs by key (see ContactStation.signals), plus "t" (s).
+    log: dict
+    # compute_metrics(...) of the log, with "status" and "message".
+    metrics: dict
+    # "completed", "diverged" or "interrupted".
+    status: str
+    # Why it stopped, if it did not complete.
+    message: str = ""
+    # Wall-clock time of the simulation alone (s).
+    wall_s: float = 0.0
+    # The Simulator, to read the context (e.g. the user's own loggers'
+    # FindLog(result.simulator.get_context())).
+    simulator: Simulator | None = dc.field(default=None, repr=False, compare=False)
+
+
+@dc.dataclass
+class SignalLoggers:
+    """The loggers :func:`AddSignalLoggers` added: one per logged signal.
+
+    :meth:`drain` moves the samples logged so far out of Drake's logs (which
+    it clears) into arrays allocated once for the whole run, so a long run
+    holds each sample once; :meth:`collect` drains and returns the log
+    dict, whose arrays are views of those."""
+
+    station: ContactStation
+    # Exported port name -> its VectorLogSink.
+    loggers: dict
+    # Samples drained so far: times, and per port an (n, size) array.
+    _times: np.ndarray = dc.field(default_factory=lambda: np.empty(0), repr=False)
+    _buffers: dict = dc.field(default_factory=dict, repr=False)
+    _n: int = 0
+
+    def reserve(self, samples: int):
+        """Allocates room for ``samples`` samples of every signal."""
+        if samples > len(self._times):
+            self._times = np.resize(self._times, samples)
+            for name, logger in self.loggers.items():
+                size = self.station.signals[name].size
+                old = self._buffers.get(name, np.empty((0, size)))
+                self._buffers[name] = np.empty((samples, size))
+                self._buffers[name][:self._n] = old[:self._n]
+
+    def drain(self, context):
+        """Moves the new samples of every logger at ``context`` into the
+        arrays (growing them if needed) and clears Drake's logs."""
+        logs = {name: logger.FindMutableLog(context) for name, logger in self.loggers.items()}
+        counts = {log.num_samples() for log in logs.values()}
+        if len(counts) != 1:
+            raise RuntimeError(f"the signal loggers hold different numbers of samples: {counts}")
+        (k,) = counts
+        if k == 0:
+            return
+        end = self._n + k
+        self.reserve(max(end, 2 * len(self._times)) if end > len(self._times) else end)
+        self._times[self._n:end] = logs["joint_state_true"].sample_times()
+        for name, log in logs.items():
+            self._buffers[name][self._n:end] = log.data().T
+            log.Clear()
+        self._n = end
+
+    def latest(self, name, samples):
+        """(times, (samples, size) array) of the last ``samples`` drained."""
+        start = max(self._n - samples, 0)
+        return self._times[start:self._n], self._buffers[name][start:self._n]
+
+    def collect(self, context) -> dict:
+        """The log dict at ``context``: ``t`` and every log key."""
+        self.drain(context)
+        n = self._n
+        out = {"t": self._times[:n]}
+        for name, buffer in self._buffers.items():
+            for key, columns in self.station.signals[name].log_as.items():
+                out[key] = buffer[:n, columns]
+        add_stiffness_ratio(out)
+        return out
+
+
+def AddSignalLoggers(builder: DiagramBuilder, station: ContactStation) -> SignalLoggers:
+    """Adds a 1 kHz logger (named ``log_<signal>``) of every logged signal
+    of ``station``, which must be in ``builder``; returns them."""
+    loggers = {}
+    for name, signal in station.signals.items():
+        if signal.log_as:
+            loggers[name] = LogVectorOutput(station.GetOutputPort(name), builder, CONTROL_PERIOD)
+            loggers[name].set_name(f"log_{name}")
+    return SignalLoggers(station, loggers)
+
+
+def MakeRunDiagram(scenario: Scenario, *, meshcat=None):
+    """The station of ``scenario`` with its loggers and, given a
+    ``meshcat``, the arm, wall and force drawn there. Returns (diagram,
+    loggers)."""
+    builder = DiagramBuilder()
+    station = builder.AddSystem(MakeContactDiagram(scenario))
+    loggers = AddSignalLoggers(builder, station)
+    if meshcat is not None:
+        AddContactVisualization(builder, station, meshcat)
+    diagram = builder.Build()
+    diagram.set_name("run")
+    return diagram, loggers
+
+
+def simulate(diagram, loggers: SignalLoggers, *, progress=None, realtime_rate=0.0,
+             meshcat=None, record=None, live=True) -> RunResult:
+    """Simulates ``diagram`` (holding ``loggers.station``) for the station's
+    ``simulation.duration``, seeded by :func:`SeedNoise`; returns a RunResult.
+
+    The run stops at the first non-finite state or contact force above
+    ``simulation.force_limit`` (status "diverged", the logs kept up to
+    that sample) and on Ctrl-C ("interrupted"). ``progress(t, duration,
+    wall_s)`` is called after every chunk of CHUNK_S. ``realtime_rate`` > 0
+    paces the run (simulated s per wall s). ``meshcat``: record the
+    diagram's Meshcat visualizers and send the recording there at the end
+    (``live``: also each frame as it is drawn); ``record``: also write it
+    as a standalone HTML playback to this file.
+    """
+    scenario = loggers.station.scenario
+    simulator = Simulator(diagram)
+    simulator.set_target_realtime_rate(realtime_rate)
+    context = simulator.get_mutable_context()
+    visualizers = start_recording(diagram, live=live) if meshcat is not None else []
+    SeedNoise(diagram, context)
+    duration = scenario.simulation.duration
+    force_limit = scenario.simulation.force_limit
+    loggers.reserve(int(round(duration / CONTROL_PERIOD)) + 1)
+    status, message = "completed", ""
+    start = time.perf_counter()
+    try:
+        simulator.Initialize()
+        chunks = int(np.ceil(duration / CHUNK_S - 1e-9))
+        for k in range(1, chunks + 1):
+            # Whole multiples of the chunk (no accumulated rounding), ending
+            # exactly at the duration.
+            t = duration if k == chunks else k * CHUNK_S
+            simulator.AdvanceTo(t)
+            loggers.drain(context)
+            _check_divergence(loggers, force_limit)
+            if progress is not None:
+                progress(t, duration, time.perf_counter() - start)
+    except SimulationDiverged as e:
+        status, message = "diverged", str(e)
+    except KeyboardInterrupt:
+        status, message = "interrupted", f"interrupted at t = {context.get_time():.3f} s"
+    except RuntimeError as e:
+        status = "diverged"
+        message = (f"simulation failed at t = {context.get_time():.3f} s: "
+                   f"{str(e).splitlines()[0]}")
+    wall_s = time.perf_counter() - start
+    if meshcat is not None:
+        finish_recording(visualizers, meshcat, record)
+    log = loggers.collect(context)
+    if status == "diverged":
+        log = _truncate_at_divergence(log, force_limit)
+    metrics = compute_metrics(scenario, log, wall_s)
+    metrics["status"] = status
+    if message:
+        metrics["message"] = message
+    return RunResult(log=log, metrics=metrics, status=status, message=message, wall_s=wall_s,
+                     simulator=simulator)
+
+
+def simulate_scenario(scenario: Scenario, *, progress=None, meshcat=None, record=None,
+                      realtime_rate=0.0) -> RunResult:
+    """Builds :func:`MakeRunDiagram` and simulates it. ``meshcat``: show the
+    run live there (arm, wall, contact force). ``record``: write a standalone
+    HTML playback to this file (checked before simulating; a headless
+    Meshcat is made if none is given), also for a diverged or interrupted
+    run. Without ``meshcat`` and ``record`` nothing is drawn."""
+    live = meshcat is not None
+    if record is not None:
+        record = check_record_path(record)
+        meshcat = meshcat or new_meshcat()
+    diagram, loggers = MakeRunDiagram(scenario, meshcat=meshcat)
+    return simulate(diagram, loggers, progress=progress, realtime_rate=realtime_rate,
+                    meshcat=meshcat, record=record, live=live)
+
+
+def _check_divergence(loggers: SignalLoggers, force_limit):
+    """Raises SimulationDiverged at the first bad sample of the last chunk."""
+    chunk = int(round(CHUNK_S / CONTROL_PERIOD)) + 1
+    times, state = loggers.latest("joint_state_true", chunk)
+    state = state.T
+    force = loggers.latest("contact_force_true", chunk)[1][:, 0]
+    bad_state = ~np.all(np.isfinite(state), axis=0)
+    bad_force = ~np.isfinite(force) | (force > force_limit)
+    if bad_state.any() or bad_force.any():
+        i = int(np.argmax(bad_state | bad_force))
+        if bad_state[i]:
+            where = "joint_state_true"
+            what = "the arm's state is not finite"
+        elif not np.isfinite(force[i]):
+            where = "contact_force_true"
+            what = "the contact force is not finite"
+        else:
+            where = "contact_force_true"
+            what = f"the contact force {force[i]:.4g} N exceeds simulation.force_limit = {force_limit} N"
+        raise SimulationDiverged(
+            f"diverged at t = {times[i]:.3f} s: {what} ({where})", time_s=times[i], where=where)
+
+
+def _truncate_at_divergence(log, force_limit):
+    """Keeps the samples up to and including the first bad one."""
+    bad = ~np.isfinite(log["contact_force_true"]) | (log["contact_force_true"] > force_limit)
+    bad |= ~np.all(np.isfinite(log["joint_positions_true"]), axis=1)
+    if bad.any():
+        stop = int(np.argmax(bad)) + 1
+        log = {k: v[:stop] for k, v in log.items()}
+    return log
+
+
+def run(scenario: Scenario, out_dir, *, progress=None, figures=True,
+        baseline=None, meshcat=None, record=None, realtime_rate=0.0) -> RunResult:
+    """Simulates ``scenario`` and writes scenario.yaml, log.npz, metrics.json
+    and figures into ``out_dir`` (created if needed).
+
+    ``baseline`` (default: with figures, for the neural controller) also runs
+    :func:`baseline_scenario` into ``out_dir/baseline``, adds its force RMSE
+    to the metrics as ``baseline_*`` and draws both runs on the same axes.
+    ``meshcat``, ``record`` (an HTML playback file) and ``realtime_rate``
+    are passed to :func:`simulate_scenario` (the baseline is not drawn).
+    """
+    if record is not None:
+        check_record_path(record)  # before writing anything
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "scenario.yaml").write_text(dump_scenario(scenario))
+    result = simulate_scenario(scenario, progress=progress, meshcat=meshcat, record=record,
+                               realtime_rate=realtime_rate)
+    log, metrics = result.log, result.metrics
+    np.savez(out / "log.npz", **log)
+    if baseline is None:
+        baseline = figures and scenario.controller.name == "nn"
+    baseline_log = None
+    if baseline and result.status == "completed":
+        base = run(baseline_scenario(scenario), out / "baseline", figures=False, baseline=False)
+        baseline_log = base.log
+        for key in ("force_rmse_n", "force_rmse_windows_n", "force_mean_abs_error_n",
+                    "adaptation_time_s"):
+            if key in base.metrics:
+                metrics[f"baseline_{key}"] = base.metrics[key]
+    # Written last and atomically: a run folder whose metrics.json parses is
+    # a finished run (the sweep's resume relies on it).
+    partial = out / "metrics.json.partial"
+    partial.write_text(json.dumps(metrics, indent=2, sort_keys=True) + "\n")
+    partial.replace(out / "metrics.json")
+    if figures and len(log["t"]) > 1:
+        from drake_contact.app.plotting import (
+            plot_contact_figures, plot_main_signals, plot_sensor_figures)
+        plot_main_signals(log, scenario, out)
+        plot_sensor_figures(log, scenario, out)
+        plot_contact_figures(log, scenario, out, baseline_log=baseline_log)
+    return result
+
+
+def terminal_progress(stream=sys.stderr):
+    """A progress callback printing simulated time and ETA on a terminal,
+    or None when ``stream`` is not one (runs stay quiet in logs and CI)."""
+    if not stream.isatty():
+        return None
+
+    def report(t, duration, wall_s):
+        eta = wall_s * (duration - t) / t if t > 0 else float("nan")
+        end = "\n" if t >= duration else ""
+        stream.write(f"\r  t = {t:7.2f} / {duration:.2f} s   ETA {eta:6.1f} s  {end}")
+        stream.flush()
+    return report
