@@ -1,0 +1,88 @@
+"""Golden logs: short logs of every bundled scenario across its contact
+switch, stored in ``tests/golden/<scenario>.npz``, that every later change
+is held to (``tests/test_golden_logs.py``).
+
+Each fixture holds the run's every logged signal at 1 kHz over the last
+:data:`WINDOW_S` before its end (the switch and the first 0.35 s of contact
+for the contact scenarios), and every :data:`DECIMATE`-th sample before
+that, plus the versions of the packages that computed it.
+
+Re-record (only when a change must alter the physics, and say why in its
+commit)::
+
+    python tests/golden_logs.py [SCENARIO ...]
+"""
+
+import json
+import sys
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+
+GOLDEN_DIR = Path(__file__).resolve().parent / "golden"
+
+#: Full-rate samples kept at the end of each golden run (s).
+WINDOW_S = 0.4
+#: Samples kept before the window: every DECIMATE-th.
+DECIMATE = 100
+#: How far past the contact switch a contact scenario's golden run goes (s).
+AFTER_SWITCH_S = 0.35
+#: Where the run ends for scenarios without a contact switch (s).
+FIXED_END_S = {"push_constant": 2.5, "sensor_spectrum": 4.2}
+#: Packages whose floating-point order the logs depend on.
+PACKAGES = ("drake", "numpy", "scipy")
+
+
+def versions() -> dict:
+    return {name: metadata.version(name) for name in PACKAGES}
+
+
+def simulate_log(scenario_name: str, duration: float) -> dict:
+    """The log dict of a bundled scenario simulated for ``duration`` s."""
+    from drake_contact import load_scenario, simulate_scenario
+    result = simulate_scenario(load_scenario(scenario_name, duration=duration))
+    assert result.status == "completed", result.message
+    return result.log
+
+
+def select(log: dict, end_s: float) -> dict:
+    """The fixture's rows of a log ending at ``end_s``."""
+    t = log["t"]
+    window = t >= end_s - WINDOW_S - 1e-9
+    before = ~window & (np.arange(len(t)) % DECIMATE == 0)
+    keep = window | before
+    return {key: np.asarray(value)[keep] for key, value in log.items()}
+
+
+def golden_end_s(scenario_name: str) -> float:
+    """Where the golden run of a scenario ends, as recorded."""
+    return float(load_golden(scenario_name)["end_s"])
+
+
+def load_golden(scenario_name: str) -> dict:
+    with np.load(GOLDEN_DIR / f"{scenario_name}.npz") as data:
+        return {key: data[key] for key in data.files}
+
+
+def record(scenario_name: str) -> Path:
+    if scenario_name in FIXED_END_S:
+        end_s = FIXED_END_S[scenario_name]
+    else:
+        probe = simulate_log(scenario_name, 9.0)
+        switch = probe["t"][int(np.argmax(probe["mode"] > 0))]
+        assert probe["mode"].max() > 0, f"{scenario_name}: no contact switch by 9 s"
+        end_s = round(float(switch) + AFTER_SWITCH_S, 3)
+    log = select(simulate_log(scenario_name, end_s), end_s)
+    path = GOLDEN_DIR / f"{scenario_name}.npz"
+    GOLDEN_DIR.mkdir(exist_ok=True)
+    np.savez_compressed(path, **{f"log/{k}": v for k, v in log.items()},
+                        end_s=np.float64(end_s), versions=json.dumps(versions()))
+    return path
+
+
+if __name__ == "__main__":
+    from drake_contact.resources import bundled_scenario_names
+    for name in sys.argv[1:] or bundled_scenario_names():
+        path = record(name)
+        print(f"{name}: {path.stat().st_size / 1e3:.0f} kB, end {golden_end_s(name):.3f} s")
