@@ -129,9 +129,14 @@ def _cmd_run(args):
     if args.meshcat:
         meshcat = new_meshcat()
         print(f"Meshcat: {meshcat.web_url()}", flush=True)
-    result = run(scenario, args.out, progress=terminal_progress(), figures=not args.no_figures,
-                 baseline=False if args.no_baseline else None, meshcat=meshcat, record=args.record,
-                 realtime_rate=args.realtime_rate if args.meshcat else 0.0)
+    try:
+        result = run(scenario, args.out, progress=terminal_progress(),
+                     figures=not args.no_figures,
+                     baseline=False if args.no_baseline else None, meshcat=meshcat,
+                     record=args.record, realtime_rate=args.realtime_rate if args.meshcat else 0.0)
+    except KeyboardInterrupt:
+        print("drake-contact: interrupted before the simulation started", file=sys.stderr)
+        return EXIT_INTERRUPTED
     m = result.metrics
     print(f"{result.status}: {m['simulated_time_s']:.3f} s simulated in {m['wall_time_s']:.2f} s "
           f"(real-time factor {m['realtime_factor']:.2f}, {m['us_per_step']:.1f} us/step); "

@@ -93,16 +93,19 @@ class SignalLoggers:
         arrays (growing them if needed) and clears Drake's logs."""
         logs = {name: logger.FindMutableLog(context) for name, logger in self.loggers.items()}
         counts = {log.num_samples() for log in logs.values()}
-        if len(counts) != 1:
+        # The loggers publish in one event: they hold the same number of
+        # samples, unless Ctrl-C stopped the simulator inside that event,
+        # when some hold one more. That last sample is incomplete: dropped.
+        k = min(counts)
+        if max(counts) > k + 1:
             raise RuntimeError(f"the signal loggers hold different numbers of samples: {counts}")
-        (k,) = counts
-        if k == 0:
-            return
         end = self._n + k
-        self.reserve(max(end, 2 * len(self._times)) if end > len(self._times) else end)
-        self._times[self._n:end] = logs["joint_state_true"].sample_times()
+        if k > 0:
+            self.reserve(max(end, 2 * len(self._times)) if end > len(self._times) else end)
+            self._times[self._n:end] = logs["joint_state_true"].sample_times()[:k]
         for name, log in logs.items():
-            self._buffers[name][self._n:end] = log.data().T
+            if k > 0:
+                self._buffers[name][self._n:end] = log.data()[:, :k].T
             log.Clear()
         self._n = end
 
@@ -272,8 +275,16 @@ def run(scenario: Scenario, out_dir, *, progress=None, figures=True,
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "scenario.yaml").write_text(dump_scenario(scenario))
-    result = simulate_scenario(scenario, progress=progress, meshcat=meshcat, record=record,
-                               realtime_rate=realtime_rate)
+    try:
+        result = simulate_scenario(scenario, progress=progress, meshcat=meshcat, record=record,
+                                   realtime_rate=realtime_rate)
+    except KeyboardInterrupt:
+        # Ctrl-C while the diagram was being built: nothing was simulated,
+        # but the folder still says what happened.
+        np.savez(out / "log.npz", t=np.empty(0))
+        _write_metrics(out, {"status": "interrupted",
+                             "message": "interrupted before the simulation started"})
+        raise
     log, metrics = result.log, result.metrics
     np.savez(out / "log.npz", **log)
     if baseline is None:
@@ -286,11 +297,7 @@ def run(scenario: Scenario, out_dir, *, progress=None, figures=True,
                     "adaptation_time_s"):
             if key in base.metrics:
                 metrics[f"baseline_{key}"] = base.metrics[key]
-    # Written last and atomically: a run folder whose metrics.json parses is
-    # a finished run (the sweep's resume relies on it).
-    partial = out / "metrics.json.partial"
-    partial.write_text(json.dumps(metrics, indent=2, sort_keys=True) + "\n")
-    partial.replace(out / "metrics.json")
+    _write_metrics(out, metrics)
     if figures and len(log["t"]) > 1:
         from drake_contact.app.plotting import (
             plot_contact_figures, plot_main_signals, plot_sensor_figures)
@@ -298,6 +305,14 @@ def run(scenario: Scenario, out_dir, *, progress=None, figures=True,
         plot_sensor_figures(log, scenario, out)
         plot_contact_figures(log, scenario, out, baseline_log=baseline_log)
     return result
+
+
+def _write_metrics(out: Path, metrics: dict):
+    """Writes metrics.json last and atomically: a run folder whose
+    metrics.json parses is a finished run (the sweep's resume relies on it)."""
+    partial = out / "metrics.json.partial"
+    partial.write_text(json.dumps(metrics, indent=2, sort_keys=True) + "\n")
+    partial.replace(out / "metrics.json")
 
 
 def terminal_progress(stream=sys.stderr):
