@@ -1,20 +1,26 @@
 """True tip kinematics of the arm, and the wall's force mapped to joints.
 
 This is the simulator's side (ground truth), not a controller's estimate:
-controllers read the encoder-based estimator instead.
+controllers read the encoder-based estimator instead. It runs in C++: the
+closed forms of :mod:`drake_contact.plant.planar_arm` as Drake symbolic
+expressions (``SymbolicVectorSystem``), checked against the plant's own
+kinematics when the system is built.
 """
 
 import numpy as np
+from pydrake import symbolic
 from pydrake.multibody.tree import JacobianWrtVariable
-from pydrake.common.value import Value
-from pydrake.systems.framework import BasicVector, LeafSystem, ValueProducer
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import Multiplexer, SymbolicVectorSystem
 
 from drake_contact.plant.arm import TIP_FRAME
-from drake_contact.errors import require_finite
+from drake_contact.plant.planar_arm import ArmParameters, tip_jacobian, tip_pose
 
 
 def CalcTipPoseAndJacobian(plant, plant_context, tip_frame):
-    """Planar tip pose [x, y, phi] in world and J = d[x, y, phi]/dv (3 x 3).
+    """Planar tip pose [x, y, phi] in world and J = d[x, y, phi]/dv (3 x 3),
+    by Drake's multibody functions (the reference the closed forms are
+    checked against).
 
     ``plant_context`` must already hold the arm's positions.
     """
@@ -28,65 +34,69 @@ def CalcTipPoseAndJacobian(plant, plant_context, tip_frame):
     return np.array([p[0], p[1], np.arctan2(R[1, 0], R[0, 0])]), J[[3, 4, 2], :]
 
 
-class TipKinematics(LeafSystem):
-    """Planar pose/velocity of the ``tip`` frame, and J^T F.
+#: Configurations (rad) at which the closed forms are checked against a
+#: plant when a kinematics system is built.
+_CHECK_POSITIONS = ([-0.5377671, 1.3205011, -0.7827340], [0.3, -1.1, 2.0], [2.5, 0.7, -2.9])
+
+
+def check_closed_forms(plant, arm: ArmParameters = ArmParameters(), tol=1e-12):
+    """Raises ValueError unless the closed-form tip pose and Jacobian of
+    ``arm`` equal ``plant``'s (its URDF) within ``tol``."""
+    context = plant.CreateDefaultContext()
+    tip = plant.GetFrameByName(TIP_FRAME)
+    for q in _CHECK_POSITIONS:
+        plant.SetPositions(context, q)
+        pose, J = CalcTipPoseAndJacobian(plant, context, tip)
+        closed = np.array(tip_pose(q, arm))
+        closed[2] = np.arctan2(np.sin(closed[2]), np.cos(closed[2]))
+        error = max(np.max(np.abs(closed - pose)), np.max(np.abs(np.array(tip_jacobian(q, arm)) - J)))
+        if not error <= tol:
+            raise ValueError(f"the arm's closed-form kinematics differ from the plant's by {error:.3g} "
+                             f"at q = {q}: the URDF no longer matches planar_arm.ArmParameters")
+
+
+def _symbolic(name, size):
+    return symbolic.MakeVectorVariable(size, name)
+
+
+def _trig():
+    return {"sin": symbolic.sin, "cos": symbolic.cos}
+
+
+class TipKinematics(Diagram):
+    """Planar pose/velocity of the ``tip`` frame, and J^T F, in C++.
 
     Input ports:
       plant_state (6): [q; v] of the arm (rad, rad/s).
       force_on_tip (3): [f_x, f_y, tau_z] applied at the tip, world (N, N m).
     Output ports:
-      tip_state (6): [x, y, phi, xdot, ydot, phidot], world (m, rad, /s).
+      tip_state (6): [x, y, phi, xdot, ydot, phidot], world (m, rad, /s);
+        phi = q1 + q2 + q3 (not wrapped).
       generalized_force (3): J(q)^T [f_x, f_y, tau_z] (N m), for the plant's
         applied_generalized_force input.
+
+    ``plant``: the arm's plant, against whose kinematics the closed forms
+    are checked once, here.
     """
 
     def __init__(self, plant):
         super().__init__()
-        self._plant = plant
-        # Scratch context: overwritten from the input on every evaluation, so
-        # it carries no state between calls.
-        self._scratch = plant.CreateDefaultContext()
-        self._tip = plant.GetFrameByName(TIP_FRAME)
-        self._memo_state = None
-        self._memo_value = None
-        self._state = self.DeclareVectorInputPort("plant_state", 6)
-        self._force = self.DeclareVectorInputPort("force_on_tip", 3)
-        # [x, y, phi, J (row-major 3 x 3)], computed once per plant state.
-        self._kinematics = self.DeclareCacheEntry(
-            description="tip pose and Jacobian",
-            value_producer=ValueProducer(
-                allocate=Value[BasicVector](BasicVector(12)).Clone,
-                calc=self._calc_kinematics),
-            prerequisites_of_calc={self._state.ticket()})
-        self.DeclareVectorOutputPort(
-            "tip_state", 6, self._calc_tip_state,
-            prerequisites_of_calc={self._state.ticket()})
-        self.DeclareVectorOutputPort(
-            "generalized_force", 3, self._calc_generalized_force,
-            prerequisites_of_calc={self._state.ticket(), self._force.ticket()})
-
-    def _calc_kinematics(self, context, abstract):
-        state = self._state.Eval(context)
-        # Drake invalidates this entry more often than the plant's state
-        # changes (three times per 1 ms step here); a value memo skips the
-        # repeats. It holds a pure function of the state, so contexts and
-        # their copies are unaffected.
-        if self._memo_state is None or not np.array_equal(state, self._memo_state):
-            require_finite(state, context, "tip_kinematics")
-            self._plant.SetPositionsAndVelocities(self._scratch, state)
-            pose, J = CalcTipPoseAndJacobian(self._plant, self._scratch, self._tip)
-            self._memo_state = state.copy()
-            self._memo_value = np.concatenate([pose, J.ravel()])
-        abstract.get_mutable_value().set_value(self._memo_value)
-
-    def _pose_and_jacobian(self, context):
-        kinematics = self._kinematics.Eval(context).value()
-        return self._state.Eval(context), kinematics[:3], kinematics[3:].reshape(3, 3)
-
-    def _calc_tip_state(self, context, output):
-        state, pose, J = self._pose_and_jacobian(context)
-        output.SetFromVector(np.concatenate([pose, J @ state[3:]]))
-
-    def _calc_generalized_force(self, context, output):
-        _, _, J = self._pose_and_jacobian(context)
-        output.SetFromVector(J.T @ self._force.Eval(context))
+        check_closed_forms(plant)
+        q, v, F = _symbolic("q", 3), _symbolic("v", 3), _symbolic("F", 3)
+        pose = tip_pose(q, **_trig())
+        J = tip_jacobian(q, **_trig())
+        velocity = [J[i][0] * v[0] + J[i][1] * v[1] + J[i][2] * v[2] for i in range(3)]
+        force = [J[0][j] * F[0] + J[1][j] * F[1] + J[2][j] * F[2] for j in range(3)]
+        builder = DiagramBuilder()
+        state = builder.AddNamedSystem("tip_state", SymbolicVectorSystem(
+            state=[], input=np.concatenate([q, v]), output=pose + velocity))
+        mux = builder.AddNamedSystem("state_and_force", Multiplexer([6, 3]))
+        torque = builder.AddNamedSystem("jacobian_transpose", SymbolicVectorSystem(
+            state=[], input=np.concatenate([q, v, F]), output=force))
+        builder.ExportInput(state.get_input_port(), "plant_state")
+        builder.ConnectInput("plant_state", mux.get_input_port(0))
+        builder.ExportInput(mux.get_input_port(1), "force_on_tip")
+        builder.Connect(mux.get_output_port(), torque.get_input_port())
+        builder.ExportOutput(state.get_output_port(), "tip_state")
+        builder.ExportOutput(torque.get_output_port(), "generalized_force")
+        builder.BuildInto(self)

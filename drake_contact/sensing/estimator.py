@@ -11,8 +11,8 @@ From the quantized encoder angles q_m:
    of q_hat, joint 3's through F (as the thesis's code; joints 1-2 unfiltered).
 
 Controllers and identifiers read these outputs, never the true state.
-Filters and differences are Drake ``LinearSystem``s; only the forward
-kinematics is Python. Lag: for a signal of frequency w the velocity lags by
+Filters and differences are Drake ``LinearSystem``s and the forward
+kinematics a closed form in C++: no Python runs here per step. Lag: for a signal of frequency w the velocity lags by
 the backward difference's half sample plus the 35 Hz filter's group delay
 (6.4 ms at low frequency): see :func:`velocity_lag_s`.
 """
@@ -20,15 +20,17 @@ the backward difference's half sample plus the 35 Hz filter's group delay
 import dataclasses as dc
 
 import numpy as np
-from pydrake.systems.framework import DiagramBuilder, LeafSystem
-from pydrake.systems.primitives import Demultiplexer, LinearSystem
+from pydrake import symbolic
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import Demultiplexer, LinearSystem, SymbolicVectorSystem
 from scipy import signal
 
 from drake_contact.blocks import AddSubdiagram
-from drake_contact.plant.arm import CONTROL_PERIOD, TIP_FRAME
-from drake_contact.errors import ScenarioError, require_finite
+from drake_contact.plant.arm import CONTROL_PERIOD
+from drake_contact.errors import ScenarioError
+from drake_contact.plant.planar_arm import tip_pose
+from drake_contact.plant.tip_kinematics import check_closed_forms
 from drake_contact.sensing.filters import butterworth_digital, differencing_filter_system
-from drake_contact.plant.tip_kinematics import CalcTipPoseAndJacobian
 
 
 @dc.dataclass
@@ -54,31 +56,23 @@ def velocity_lag_s(cutoff_hz, frequency_hz, period=CONTROL_PERIOD):
     return 0.5 * period + float(gd[0]) * period
 
 
-class ForwardKinematics(LeafSystem):
-    """Input: joint_positions (3, rad). Output: tip_pose (3: x, y, phi; m, rad)
-    by the given plant model (a controller's model of the arm)."""
+class ForwardKinematics(Diagram):
+    """Input: joint_positions (3, rad). Output: tip_pose (3: x, y, phi; m,
+    rad), phi = q1 + q2 + q3, by the closed forms of the arm (planar_arm),
+    evaluated in C++ (a ``SymbolicVectorSystem``). ``plant_model``: the
+    controller's model of the arm, against whose kinematics the closed forms
+    are checked once, here."""
 
     def __init__(self, plant_model):
         super().__init__()
-        self._plant = plant_model
-        self._scratch = plant_model.CreateDefaultContext()
-        self._tip = plant_model.GetFrameByName(TIP_FRAME)
-        self._memo_q = None
-        self._memo_pose = None
-        self._q = self.DeclareVectorInputPort("joint_positions", 3)
-        self.DeclareVectorOutputPort("tip_pose", 3, self._calc,
-                                     prerequisites_of_calc={self._q.ticket()})
-
-    def _calc(self, context, output):
-        q = self._q.Eval(context)
-        # Value memo of a pure function (see TipKinematics): skips the
-        # repeated evaluations Drake makes within one step.
-        if self._memo_q is None or not np.array_equal(q, self._memo_q):
-            require_finite(q, context, "estimator")
-            self._plant.SetPositions(self._scratch, q)
-            self._memo_pose, _ = CalcTipPoseAndJacobian(self._plant, self._scratch, self._tip)
-            self._memo_q = q.copy()
-        output.SetFromVector(self._memo_pose)
+        check_closed_forms(plant_model)
+        q = symbolic.MakeVectorVariable(3, "q")
+        builder = DiagramBuilder()
+        fk = builder.AddNamedSystem("closed_form", SymbolicVectorSystem(
+            state=[], input=q, output=tip_pose(q, sin=symbolic.sin, cos=symbolic.cos)))
+        builder.ExportInput(fk.get_input_port(), "joint_positions")
+        builder.ExportOutput(fk.get_output_port(), "tip_pose")
+        builder.BuildInto(self)
 
 
 def _joint_filters(b, a, period):
