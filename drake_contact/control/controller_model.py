@@ -4,21 +4,19 @@ The thesis's controllers compensate the arm's dynamics with a model:
 M(q), h(q, qdot), J(q), Jdot qdot and the dry friction F_c. Real models are
 wrong; here each link's mass and inertia can be scaled and the friction the
 controller believes in set apart from the plant's. Everything is computed
-with Drake's multibody functions on a MultibodyPlant of the URDF whose
-parameters are changed in its own context; the thesis's closed forms
-(Appendix C-D) are the test oracle (tests/thesis_closed_forms.py).
+by the closed forms of Appendix C-D (plant/planar_arm.py), which the tests
+check against Drake's MultibodyPlant of the URDF, with the scaled
+parameters, and against the thesis's own forms (tests/thesis_closed_forms.py).
 """
 
 import dataclasses as dc
 
 import numpy as np
-from pydrake.multibody.tree import JacobianWrtVariable, RotationalInertia, SpatialInertia
 
-from drake_contact.plant.arm import TIP_FRAME, MakeArmModel
 from drake_contact.errors import ScenarioError
-from drake_contact.plant.tip_kinematics import CalcTipPoseAndJacobian
+from drake_contact.plant.planar_arm import (
+    ArmParameters, jdot_qdot, mass_matrix_and_bias, tip_jacobian, tip_pose)
 
-LINK_NAMES = ("link1", "link2", "link3")
 
 
 @dc.dataclass
@@ -58,53 +56,40 @@ class ControllerModelConfig:
 
 
 class ArmModel:
-    """M, h, J, Jdot qdot and the tip pose of the controller's arm model.
-
-    Holds a plant and one context with the scaled parameters; ``evaluate``
-    overwrites its state, so it carries nothing between calls.
+    """M, h, J, Jdot qdot and the tip pose of the controller's arm model,
+    by the closed forms of :mod:`drake_contact.plant.planar_arm` with the
+    model's scaled masses and inertias (one evaluation: a few dozen scalar
+    operations, no Drake call).
     """
 
     def __init__(self, config: ControllerModelConfig):
         self.config = config
-        self.plant = MakeArmModel()
-        self.context = self.plant.CreateDefaultContext()
-        for name, ms, js in zip(LINK_NAMES, config.mass_scale, config.inertia_scale):
-            body = self.plant.GetBodyByName(name)
-            nominal = body.default_spatial_inertia()
-            mass = nominal.get_mass()
-            p_com = nominal.get_com()
-            I_central = _central_inertia(nominal)
-            scaled = SpatialInertia.MakeFromCentralInertia(
-                mass * ms, p_com, RotationalInertia(*(js * I_central.get_moments()), 0, 0, 0))
-            body.SetSpatialInertiaInBodyFrame(self.context, scaled)
-        self._tip = self.plant.GetFrameByName(TIP_FRAME)
-        self._world = self.plant.world_frame()
+        self.arm = ArmParameters().scaled(config.mass_scale, config.inertia_scale)
         self.friction_levels = np.asarray(config.friction_levels, dtype=float)
         self.motor_torque_scale = np.asarray(config.motor_torque_scale, dtype=float)
+        self._friction = [float(x) for x in config.friction_levels]
+        self._band = float(config.friction_band)
+        self._motor = [float(x) for x in config.motor_torque_scale]
+
+    def evaluate_rows(self, q, qdot):
+        """(J, Jdot qdot, M, h) as lists of Python floats (rows for the
+        matrices), for the controllers' per-sample arithmetic."""
+        arm = self.arm
+        M, h = mass_matrix_and_bias(q, qdot, arm)
+        return tip_jacobian(q, arm), jdot_qdot(q, qdot, arm), M, h
 
     def evaluate(self, q, qdot):
-        """(pose [x, y, phi], J (3x3), Jdot qdot (3), M (3x3), h (3))."""
-        plant, context = self.plant, self.context
-        plant.SetPositions(context, q)
-        plant.SetVelocities(context, qdot)
-        pose, J = CalcTipPoseAndJacobian(plant, context, self._tip)
-        bias = plant.CalcBiasSpatialAcceleration(
-            context, JacobianWrtVariable.kV, self._tip, np.zeros(3), self._world, self._world)
-        jdot_qdot = np.array([bias.translational()[0], bias.translational()[1],
-                              bias.rotational()[2]])
-        return pose, J, jdot_qdot, plant.CalcMassMatrix(context), plant.CalcBiasTerm(context)
+        """(pose [x, y, phi], J (3x3), Jdot qdot (3), M (3x3), h (3)) as arrays."""
+        q = [float(x) for x in q]
+        qdot = [float(x) for x in qdot]
+        J, jd, M, h = self.evaluate_rows(q, qdot)
+        return (np.array(tip_pose(q, self.arm)), np.array(J), np.array(jd), np.array(M),
+                np.array(h))
 
     def command(self, desired_torque):
         """The motor command that, by the model, gives ``desired_torque``."""
-        return desired_torque / self.motor_torque_scale
+        return [t / s for t, s in zip(desired_torque, self._motor)]
 
     def friction_compensation(self, qdot):
         """F_c sgn(qdot), linear inside |qdot| < band (the thesis's code)."""
-        return self.friction_levels * np.clip(qdot / self.config.friction_band, -1.0, 1.0)
-
-
-def _central_inertia(spatial_inertia):
-    """Rotational inertia about the COM (body axes) of a SpatialInertia."""
-    mass = spatial_inertia.get_mass()
-    about_origin = spatial_inertia.CalcRotationalInertia()
-    return about_origin.ShiftToCenterOfMass(mass, spatial_inertia.get_com())
+        return [f * min(max(w / self._band, -1.0), 1.0) for f, w in zip(self._friction, qdot)]

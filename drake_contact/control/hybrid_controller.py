@@ -43,6 +43,7 @@ from pydrake.systems.framework import LeafSystem
 
 from drake_contact.plant.arm import CONTROL_PERIOD, CONTROL_SAMPLE_OFFSET
 from drake_contact.control.controller_model import ArmModel, ControllerModelConfig
+from drake_contact.plant.planar_arm import solve3
 from drake_contact.errors import ScenarioError, require_finite
 
 CONTACT_LAWS = ("hybrid", "decoupled")
@@ -195,20 +196,23 @@ class HybridController(LeafSystem):
             x_d = self._approach_target(timer)
             timer += CONTROL_PERIOD
 
-        _, J, jdot_qdot, M, h = self._model.evaluate(q, qdot)
-        u_x = c.position_gain * (np.array([x_d, c.y_desired, c.phi_desired]) - x) \
-            - c.velocity_gain * xd
-        tau = h.copy()
+        # Scalar arithmetic on the model's closed forms: on 3-vectors numpy's
+        # per-call cost is most of the work.
+        x, xd, q, qdot = x.tolist(), xd.tolist(), q.tolist(), qdot.tolist()
+        J, jdot_qdot, M, h = self._model.evaluate_rows(q, qdot)
+        target = (x_d, c.y_desired, c.phi_desired)
+        u_x = [c.position_gain * (target[i] - x[i]) - c.velocity_gain * xd[i] for i in range(3)]
+        tau = list(h)
         if c.friction_compensation:
-            tau += self._model.friction_compensation(qdot)
+            tau = [a + b for a, b in zip(tau, self._model.friction_compensation(qdot))]
+        force_x = 0.0
         if mode == APPROACH:
-            tau += M @ np.linalg.solve(J, u_x - jdot_qdot)
+            accel = u_x
         else:
             f_d = self._force_desired.Eval(context)[0]
             error = f_d - f
             error_sum += error
-            accel = u_x.copy()
-            accel[0] = 0.0  # (I - S) u_x
+            accel = [0.0, u_x[1], u_x[2]]  # (I - S) u_x
             if c.law == "hybrid":
                 force_x = f_d + c.force_gain * error + c.force_integral_gain * error_sum
             else:
@@ -216,10 +220,12 @@ class HybridController(LeafSystem):
                 accel[0] = (c.decoupled_force_gain * error
                             - c.decoupled_force_damping * k_e * xd[0]) / k_e
                 force_x = f_d
-            tau += M @ np.linalg.solve(J, accel - jdot_qdot) + J[0] * force_x
+        qddot = solve3(J, [a - b for a, b in zip(accel, jdot_qdot)])
+        tau = [tau[i] + M[i][0] * qddot[0] + M[i][1] * qddot[1] + M[i][2] * qddot[2]
+               + J[0][i] * force_x for i in range(3)]
 
         state.get_mutable_vector(self._tau_group).SetFromVector(self._model.command(tau))
         state.get_mutable_vector(self._mode_group).SetAtIndex(0, mode)
         state.get_mutable_vector(self._info_group).SetFromVector(info)
-        state.get_mutable_vector(self._jacobian_group).SetFromVector(J.ravel())
+        state.get_mutable_vector(self._jacobian_group).SetFromVector(J[0] + J[1] + J[2])
         state.get_mutable_vector(self._internal).SetFromVector([timer, x_d, error_sum])

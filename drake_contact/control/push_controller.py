@@ -18,9 +18,10 @@ import dataclasses as dc
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-from drake_contact.plant.arm import CONTROL_PERIOD, TIP_FRAME
+from drake_contact.plant.arm import CONTROL_PERIOD
 from drake_contact.errors import ScenarioError, require_finite
-from drake_contact.plant.tip_kinematics import CalcTipPoseAndJacobian
+from drake_contact.plant.planar_arm import tip_jacobian, tip_pose
+from drake_contact.plant.tip_kinematics import check_closed_forms
 
 
 @dc.dataclass
@@ -63,23 +64,23 @@ class ConstantForcePushController(LeafSystem):
         super().__init__()
         config.validate()
         self._config = config
-        self._plant = plant
-        self._scratch = plant.CreateDefaultContext()
-        self._tip = plant.GetFrameByName(TIP_FRAME)
+        check_closed_forms(plant)
         self._state = self.DeclareVectorInputPort("plant_state", 6)
         torque = self.DeclareDiscreteState(3)
         self.DeclarePeriodicDiscreteUpdateEvent(CONTROL_PERIOD, 0.0, self._update)
         self.DeclareStateOutputPort("joint_torque_commanded", torque)
 
     def _update(self, context, discrete_state):
-        c, plant = self._config, self._plant
+        c = self._config
         state = self._state.Eval(context)
         require_finite(state, context, "controller")
-        plant.SetPositionsAndVelocities(self._scratch, state)
-        (_, y, phi), J = CalcTipPoseAndJacobian(plant, self._scratch, self._tip)
-        xdot, ydot, phidot = J @ state[3:]
+        q, v = state[:3].tolist(), state[3:].tolist()
+        _, y, phi = tip_pose(q)
+        J = tip_jacobian(q)
+        xdot, ydot, phidot = (row[0] * v[0] + row[1] * v[1] + row[2] * v[2] for row in J)
         force = c.force if context.get_time() >= c.start_time - 1e-9 else 0.0
         wrench = [force - c.damping_x * xdot,
                   c.stiffness_y * (c.y_desired - y) - c.damping_y * ydot,
                   c.stiffness_phi * (c.phi_desired - phi) - c.damping_phi * phidot]
-        discrete_state.set_value(J.T @ wrench)
+        discrete_state.set_value(
+            [J[0][j] * wrench[0] + J[1][j] * wrench[1] + J[2][j] * wrench[2] for j in range(3)])
