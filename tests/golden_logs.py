@@ -7,10 +7,18 @@ Each fixture holds the run's every logged signal at 1 kHz over the last
 for the contact scenarios), and every :data:`DECIMATE`-th sample before
 that, plus the versions of the packages that computed it.
 
-Re-record (only when a change must alter the physics, and say why in its
-commit)::
+Re-record (only when a change must alter the physics or reorder its
+floating-point arithmetic, and say which and why in its commit)::
 
     python tests/golden_logs.py [SCENARIO ...]
+
+Before re-recording, measure how far the change moves each signal::
+
+    python tests/golden_logs.py --compare [SCENARIO ...]
+
+prints, per scenario, the signals that moved: the largest deviation
+relative to the signal's scale (its largest magnitude in the fixture), and
+when it first exceeds 1e-9 of that scale.
 """
 
 import json
@@ -81,8 +89,36 @@ def record(scenario_name: str) -> Path:
     return path
 
 
+def compare(scenario_name: str) -> list:
+    """[(signal, largest |deviation| / scale, first time above 1e-9 of the
+    scale)] of the current code against the fixture, largest first; signals
+    that did not move are left out."""
+    golden = load_golden(scenario_name)
+    end_s = float(golden["end_s"])
+    log = select(simulate_log(scenario_name, end_s), end_s)
+    t = golden["log/t"]
+    rows = []
+    for key in (k for k in golden if k.startswith("log/") and k != "log/t"):
+        expected, actual = golden[key], np.asarray(log[key[len("log/"):]])
+        scale = float(np.max(np.abs(expected), initial=0.0)) or 1.0
+        deviation = np.abs(actual - expected).reshape(len(t), -1).max(axis=1) / scale
+        if deviation.max() > 0:
+            first = float(t[int(np.argmax(deviation > 1e-9))]) if deviation.max() > 1e-9 else None
+            rows.append((key[len("log/"):], float(deviation.max()), first))
+    return sorted(rows, key=lambda row: -row[1])
+
+
 if __name__ == "__main__":
     from drake_contact.resources import bundled_scenario_names
-    for name in sys.argv[1:] or bundled_scenario_names():
-        path = record(name)
-        print(f"{name}: {path.stat().st_size / 1e3:.0f} kB, end {golden_end_s(name):.3f} s")
+    args = sys.argv[1:]
+    if args and args[0] == "--compare":
+        for name in args[1:] or bundled_scenario_names():
+            rows = compare(name)
+            print(f"{name}: {len(rows)} signals moved"
+                  + "".join(f"\n  {signal:32s} {dev:9.2e}"
+                            + (f"  from t = {first:.3f} s" if first is not None else "")
+                            for signal, dev, first in rows))
+    else:
+        for name in args or bundled_scenario_names():
+            path = record(name)
+            print(f"{name}: {path.stat().st_size / 1e3:.0f} kB, end {golden_end_s(name):.3f} s")
