@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 
 import thesis_closed_forms as thesis
-from drake_contact.plant.arm import THESIS_Q0
+from drake_contact.plant.arm import FIRST_SAMPLE_S, THESIS_Q0, ApplySampledUpdates
 from drake_contact.control.force_reference import ForceReferenceConfig
-from drake_contact.control.hybrid_controller import HybridController, HybridControllerConfig
+from drake_contact.control.hybrid_controller import (
+    HybridControlLaw, HybridController, HybridControllerConfig)
 
 S = np.diag([1.0, 0.0, 0.0])
 
@@ -17,7 +18,9 @@ S = np.diag([1.0, 0.0, 0.0])
 def sample(config, *, force, q=None, qdot=None, f_d=20.0, k_e=7000.0, steps=1,
            controller=None, context=None):
     controller = controller or HybridController(config)
-    context = context or controller.CreateDefaultContext()
+    if context is None:
+        context = controller.CreateDefaultContext()
+        context.SetTime(FIRST_SAMPLE_S)  # the first sample instant
     q = np.array(THESIS_Q0) + np.array([0.01, -0.02, 0.005]) if q is None else q
     qdot = np.array([0.02, -0.05, 0.1]) if qdot is None else qdot
     x = thesis.forward_kinematics(q)
@@ -27,12 +30,12 @@ def sample(config, *, force, q=None, qdot=None, f_d=20.0, k_e=7000.0, steps=1,
               "stiffness_estimate": [k_e]}
     for name, value in inputs.items():
         controller.GetInputPort(name).FixValue(context, value)
+    # Each sample: the outputs are the law at this sample (from the inputs
+    # and the state the previous samples left); then the update stores it.
     for _ in range(steps):
-        new = controller.EvalUniquePeriodicDiscreteUpdate(context)
-        for group in range(new.num_groups()):
-            context.SetDiscreteState(group, new.get_vector(group).value().copy())
-    tau = controller.GetOutputPort("joint_torque_commanded").Eval(context)
-    mode = controller.GetOutputPort("mode").Eval(context)[0]
+        tau = controller.GetOutputPort("joint_torque_commanded").Eval(context).copy()
+        mode = controller.GetOutputPort("mode").Eval(context)[0]
+        ApplySampledUpdates(controller, context)
     return tau, mode, q, qdot, x, xd
 
 
@@ -98,20 +101,29 @@ def test_switches_at_the_threshold_and_back_when_contact_is_lost():
     config = HybridControllerConfig()
     controller = HybridController(config)
     context = controller.CreateDefaultContext()
+    context.SetTime(FIRST_SAMPLE_S)
     kw = dict(controller=controller, context=context)
     _, mode, *_ = sample(config, force=4.9, **kw)
     assert mode == 0
-    _, mode, *_ = sample(config, force=5.1, **kw)
+    tau, mode, *_ = sample(config, force=5.1, **kw)
     assert mode == 1
     info = controller.GetOutputPort("contact_info").Eval(context)
-    assert info[0] == pytest.approx(0.0)  # first contact time (the context's t = 0)
+    assert info[0] == FIRST_SAMPLE_S  # first contact time (the context's time)
+    # Between samples (a plant step finer than 1 ms) the outputs are the
+    # last sample's, whatever the inputs do.
+    held = tau
+    context.SetTime(FIRST_SAMPLE_S + 0.0005)
+    controller.GetInputPort("force").FixValue(context, [30.0])
+    np.testing.assert_array_equal(
+        controller.GetOutputPort("joint_torque_commanded").Eval(context), held)
+    context.SetTime(FIRST_SAMPLE_S)
     _, mode, *_ = sample(config, force=-0.1, **kw)
     assert mode == 0
 
 
 def test_approach_schedule_holds_then_steps_one_mm_per_second():
     config = HybridControllerConfig()
-    controller = HybridController(config)
+    controller = HybridControlLaw(config)
     assert controller._approach_target(4.999) == pytest.approx(0.454)
     assert controller._approach_target(5.0) == pytest.approx(0.456)
     assert controller._approach_target(6.5) == pytest.approx(0.457)

@@ -5,6 +5,8 @@ system's one sample (learning only in contact, J^T n, context copies)."""
 import dataclasses as dc
 
 import numpy as np
+
+from drake_contact.plant.arm import FIRST_SAMPLE_S, ApplySampledUpdates, CalcSampledUpdate
 import pytest
 from pydrake.systems.framework import DiagramBuilder
 
@@ -98,9 +100,16 @@ def test_gradient_matches_finite_differences():
     np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-8)
 
 
+def _sample(system, context):
+    """The compensator's discrete state after the sample at the context's time."""
+    law = system.GetSubsystemByName("law")
+    return CalcSampledUpdate(law, law.GetMyContextFromRoot(context))
+
+
 def _system_context(config, mode, force, force_desired=20.0):
     system = NnCompensator(config)
     context = system.CreateDefaultContext()
+    context.SetTime(FIRST_SAMPLE_S)  # the first sample instant
     q = np.array(THESIS_Q0)
     pose = np.array([0.456, 1e-3, -2e-3])
     system.GetInputPort("tip_pose").FixValue(context, pose)
@@ -118,23 +127,27 @@ def test_system_sample_in_contact_learns_and_outputs_jt_n():
     system, context, q, pose = _system_context(config, mode=1, force=15.0)
     weights = context.get_discrete_state(0).value().copy()
     # The previous pose is the state (zero at start); the inputs use it.
-    update = system.EvalUniquePeriodicDiscreteUpdate(context)
+    update = _sample(system, context)
     net = CompensatorNetwork(config)
     inputs = np.concatenate([pose, np.zeros(3), INPUTS[6:]])
     expected_weights, n = net.train(weights, inputs, np.array([5.0, -1e-3, 2e-3]))
     np.testing.assert_allclose(update.get_vector(0).value(), expected_weights, rtol=1e-12)
     np.testing.assert_allclose(update.get_vector(1).value(), pose)   # next previous pose
     J = ArmModel(ControllerModelConfig()).evaluate(q, np.zeros(3))[1]
-    np.testing.assert_allclose(update.get_vector(2).value(), J.T @ n, rtol=1e-9)
-    np.testing.assert_allclose(update.get_vector(3).value(), n)
+    # Held outputs [J^T n, n], also this sample's output ports.
+    np.testing.assert_allclose(update.get_vector(2).value()[:3], J.T @ n, rtol=1e-9)
+    np.testing.assert_allclose(update.get_vector(2).value()[3:], n)
+    np.testing.assert_allclose(system.GetOutputPort("joint_torque").Eval(context), J.T @ n,
+                               rtol=1e-9)
+    np.testing.assert_allclose(system.GetOutputPort("nn_output").Eval(context), n)
 
 
 def test_system_is_silent_and_does_not_learn_in_approach():
     system, context, _, pose = _system_context(NnCompensatorConfig(), mode=0, force=2.0)
     weights = context.get_discrete_state(0).value().copy()
-    update = system.EvalUniquePeriodicDiscreteUpdate(context)
+    update = _sample(system, context)
     np.testing.assert_array_equal(update.get_vector(0).value(), weights)
-    np.testing.assert_array_equal(update.get_vector(2).value(), np.zeros(3))
+    np.testing.assert_array_equal(update.get_vector(2).value(), np.zeros(6))
     np.testing.assert_array_equal(update.get_vector(1).value(), pose)
 
 
@@ -142,19 +155,19 @@ def test_learning_off_keeps_the_weights_and_still_compensates():
     config = NnCompensatorConfig(learning=False)
     system, context, _, _ = _system_context(config, mode=1, force=15.0)
     weights = context.get_discrete_state(0).value().copy()
-    update = system.EvalUniquePeriodicDiscreteUpdate(context)
+    update = _sample(system, context)
     np.testing.assert_array_equal(update.get_vector(0).value(), weights)
-    assert np.any(update.get_vector(3).value() != 0)
+    assert np.any(update.get_vector(2).value()[3:] != 0)
 
 
 def test_a_copied_context_carries_what_was_learned():
     system, context, _, _ = _system_context(NnCompensatorConfig(), mode=1, force=10.0)
-    context.SetDiscreteState(system.EvalUniquePeriodicDiscreteUpdate(context))
+    ApplySampledUpdates(system, context)
     copy = context.Clone()
     np.testing.assert_array_equal(copy.get_discrete_state(0).value(),
                                   context.get_discrete_state(0).value())
-    assert system.EvalUniquePeriodicDiscreteUpdate(copy).get_vector(0).value()[0] == \
-        system.EvalUniquePeriodicDiscreteUpdate(context).get_vector(0).value()[0]
+    assert _sample(system, copy).get_vector(0).value()[0] == \
+        _sample(system, context).get_vector(0).value()[0]
 
 
 @pytest.mark.parametrize("change,field", [

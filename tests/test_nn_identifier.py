@@ -2,6 +2,8 @@
 learning a linear environment, probing."""
 
 import numpy as np
+
+from drake_contact.plant.arm import CalcSampledUpdate
 import pytest
 
 from drake_contact.identification.nn_identifier import ImpedanceNetwork, NnIdentifierConfig
@@ -60,7 +62,7 @@ def test_system_step_trains_on_the_force_less_the_switch_force(force_offset):
     x = np.array([1e-3, 0.01, 0.5])
     context = _fixed_context(system, 12.0, x)
     w0 = context.get_discrete_state(0).value().copy()
-    state = system.EvalUniquePeriodicDiscreteUpdate(context)
+    state = CalcSampledUpdate(system, context)
     f_s = 12.0 if force_offset else 0.0
     expected, f_hat = net.train(w0, x, 12.0 - f_s)
     np.testing.assert_allclose(state.get_vector(0).value(), expected, rtol=1e-12)
@@ -68,5 +70,5 @@ def test_system_step_trains_on_the_force_less_the_switch_force(force_offset):
     assert state.get_vector(2).value()[0] == pytest.approx(f_hat + f_s)
     assert list(state.get_vector(3).value()) == [1.0, f_s]
     before = _fixed_context(system, 12.0, x, t_contact=-1.0)
-    untouched = system.EvalUniquePeriodicDiscreteUpdate(before)
+    untouched = CalcSampledUpdate(system, before)
     np.testing.assert_array_equal(untouched.get_vector(0).value(), w0)

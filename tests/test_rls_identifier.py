@@ -2,6 +2,8 @@
 the RlsIdentifier system stepped alone with fixed inputs."""
 
 import numpy as np
+
+from drake_contact.plant.arm import ApplySampledUpdates
 import pytest
 
 from drake_contact.identification.rls_identifier import RlsConfig, RlsEstimator, RlsIdentifier
@@ -88,7 +90,7 @@ def fix_inputs(system, context, *, t_contact, xe, xd, xdd, f):
 
 
 def step(system, context):
-    context.SetDiscreteState(system.EvalUniquePeriodicDiscreteUpdate(context))
+    ApplySampledUpdates(system, context)
 
 
 def impedance(system, context):

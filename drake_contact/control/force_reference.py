@@ -13,7 +13,7 @@ import dataclasses as dc
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-from drake_contact.plant.arm import CONTROL_PERIOD, CONTROL_SAMPLE_OFFSET
+from drake_contact.plant.arm import CONTROL_PERIOD, DeclareSampledUpdate, is_sample_time
 from drake_contact.errors import ScenarioError
 
 
@@ -54,7 +54,10 @@ class ForceReferenceConfig:
 
 class ForceReference(LeafSystem):
     """Input port: contact_info (4, [time of first contact or -1, x, y, phi at
-    the switch]). Output port: force_desired (1, N), updated every 1 ms."""
+    the switch]). Output port: force_desired (1, N), updated every 1 ms: at
+    each sample it computes the value of the next one (a state output, so
+    the controller that reads it and whose contact_info it reads sample in
+    the same event without an algebraic loop)."""
 
     def __init__(self, config: ForceReferenceConfig):
         super().__init__()
@@ -62,10 +65,12 @@ class ForceReference(LeafSystem):
         self._config = config
         self._contact = self.DeclareVectorInputPort("contact_info", 4)
         force = self.DeclareDiscreteState([config.levels[0]])
-        self.DeclarePeriodicDiscreteUpdateEvent(CONTROL_PERIOD, CONTROL_SAMPLE_OFFSET, self._update)
+        DeclareSampledUpdate(self, self._update)
         self.DeclareStateOutputPort("force_desired", force)
 
     def _update(self, context, discrete_state):
+        if not is_sample_time(context.get_time()):
+            return  # t = 0: the first sample is at 1 ms
         t_contact = self._contact.Eval(context)[0]
         # The value for the next sample (the controller reads it then).
         t = context.get_time() + CONTROL_PERIOD

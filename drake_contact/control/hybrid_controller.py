@@ -28,8 +28,8 @@ squared, an acceleration (Yoshikawa et al. 1988, the thesis's reference
 [25]). We add the force-rate damping K_fv k_e xd (k_e xd = df/dt), without
 which the decoupled force loop is undamped; K_fv = 0 gives (4.21) as printed.
 
-Samples CONTROL_SAMPLE_LEAD (1 us) before each 1 ms plant step, so its
-torque acts from that step on (see arm.py). Reads measured signals only: the estimator's tip pose, velocity, joint
+Sampled at each whole millisecond, in the same event as the plant step its
+torque acts over (see arm.py, ``is_sample_time``). Reads measured signals only: the estimator's tip pose, velocity, joint
 angles and velocities, and the DSP's filtered force. M, h, J, Jdot qdot and
 F_c come from the controller's own model of the arm (controller_model.py),
 which may be wrong. Jdot qdot is the true one (the thesis's code used a
@@ -37,11 +37,13 @@ product linear in qdot; SPEC §7).
 """
 
 import dataclasses as dc
+import math
 
 import numpy as np
-from pydrake.systems.framework import LeafSystem
+from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import Demultiplexer
 
-from drake_contact.plant.arm import CONTROL_PERIOD, CONTROL_SAMPLE_OFFSET
+from drake_contact.plant.arm import CONTROL_PERIOD, DeclareSampledUpdate, is_sample_time
 from drake_contact.control.controller_model import ArmModel, ControllerModelConfig
 from drake_contact.plant.planar_arm import solve3
 from drake_contact.errors import ScenarioError, require_finite
@@ -122,21 +124,19 @@ class HybridControllerConfig:
         self.model.validate(f"{prefix}.model")
 
 
-class HybridController(LeafSystem):
-    """The thesis's approach and contact controllers, as one sampled system.
+#: Layout of the law's output vector: the exported signals, then the
+#: internal state [approach timer (s), x_d (m), sum of force errors (N)].
+_TAU, _MODE, _INFO, _JACOBIAN, _INTERNAL = (slice(0, 3), slice(3, 4), slice(4, 8),
+                                           slice(8, 17), slice(17, 20))
+_LAW_SIZE = 20
 
-    Input ports (measured signals):
-      tip_pose (3): [x, y, phi] (m, rad); tip_velocity (3) (m/s, rad/s);
-      joint_positions (3) (rad); joint_velocities (3) (rad/s);
-      force (1): the DSP's filtered force (N); force_desired (1) (N);
-      stiffness_estimate (1): k_e for the decoupled law (N/m).
-    Output ports (state outputs, held between samples):
-      joint_torque_commanded (3) (N m); mode (1): 0 approach, 1 contact;
-      tip_jacobian (9): this sample's J of [x, y, phi] w.r.t. q, row-major,
-        from the controller's model (for the compensator's J^T n);
-      contact_info (4): [time of the first switch (s) or -1, x, y, phi at
-        the latest switch] for the reference generator and identifiers.
-    """
+
+class HybridControlLaw(LeafSystem):
+    """The law of :class:`HybridController` as one leaf system: its single
+    output ``control`` (20) is the law evaluated on the inputs at a sample
+    instant (k ms) and held between them; the discrete update at each sample
+    stores it. So the law runs once per sample, in the same event as the
+    plant step it drives."""
 
     def __init__(self, config: HybridControllerConfig):
         super().__init__()
@@ -150,18 +150,19 @@ class HybridController(LeafSystem):
         self._force = self.DeclareVectorInputPort("force", 1)
         self._force_desired = self.DeclareVectorInputPort("force_desired", 1)
         self._stiffness = self.DeclareVectorInputPort("stiffness_estimate", 1)
-        # One group per output, so each is a state output port (no Python on
-        # read), plus [approach timer (s), x_d (m), sum of force errors (N)].
-        self._tau_group = self.DeclareDiscreteState(3)
-        self._mode_group = self.DeclareDiscreteState(1)
-        self._info_group = self.DeclareDiscreteState([-1.0, 0.0, 0.0, 0.0])
-        self._jacobian_group = self.DeclareDiscreteState(9)
-        self._internal = self.DeclareDiscreteState([0.0, config.approach.start_x, 0.0])
-        self.DeclarePeriodicDiscreteUpdateEvent(CONTROL_PERIOD, CONTROL_SAMPLE_OFFSET, self._update)
-        self.DeclareStateOutputPort("joint_torque_commanded", self._tau_group)
-        self.DeclareStateOutputPort("mode", self._mode_group)
-        self.DeclareStateOutputPort("contact_info", self._info_group)
-        self.DeclareStateOutputPort("tip_jacobian", self._jacobian_group)
+        held = np.zeros(_LAW_SIZE)
+        held[_INFO] = [-1.0, 0.0, 0.0, 0.0]
+        held[_INTERNAL] = [0.0, config.approach.start_x, 0.0]
+        self._held = self.DeclareDiscreteState(held)
+        self._control = self.DeclareVectorOutputPort(
+            "control", _LAW_SIZE, self._calc_control,
+            prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket(),
+                                   self.time_ticket()})
+        DeclareSampledUpdate(self, self._update)
+
+    def _update(self, context, state):
+        # At t = 0 (before the first sample) the output is the held state.
+        state.set_value(self._control.Eval(context))
 
     def _approach_target(self, timer):
         a = self._config.approach
@@ -170,19 +171,25 @@ class HybridController(LeafSystem):
         return a.first_target_x + a.step_m * np.floor((timer - a.hold_time_s) / a.step_period_s
                                                       + 1e-9)
 
-    def _update(self, context, state):
+    def _calc_control(self, context, output):
         c = self._config
-        x = self._pose.Eval(context)
-        xd = self._velocity.Eval(context)
-        q = self._q.Eval(context)
-        qdot = self._qdot.Eval(context)
-        require_finite(np.concatenate([x, xd, q, qdot]), context, "controller",
-                       "the controller's measured state")
-        f = self._force.Eval(context)[0]
-        mode = context.get_discrete_state(self._mode_group).GetAtIndex(0)
-        info = context.get_discrete_state(self._info_group).value().copy()
-        timer, x_d, error_sum = context.get_discrete_state(self._internal).value()
+        held = context.get_discrete_state(self._held).value()
         t = context.get_time()
+        if not is_sample_time(t):
+            output.SetFromVector(held)  # zero-order hold between samples
+            return
+        # Python floats: on 3-vectors numpy's per-call cost is most of the work.
+        x = self._pose.Eval(context).tolist()
+        xd = self._velocity.Eval(context).tolist()
+        q = self._q.Eval(context).tolist()
+        qdot = self._qdot.Eval(context).tolist()
+        if not math.isfinite(sum(x) + sum(xd) + sum(q) + sum(qdot)):
+            require_finite(np.array([math.nan]), context, "controller",
+                           "the controller's measured state")
+        f = self._force.Eval(context)[0]
+        mode = held[3]
+        info = held[_INFO].tolist()
+        timer, x_d, error_sum = held[_INTERNAL].tolist()
 
         if mode == APPROACH and f > c.contact_threshold_n:
             mode, error_sum = CONTACT, 0.0
@@ -196,9 +203,6 @@ class HybridController(LeafSystem):
             x_d = self._approach_target(timer)
             timer += CONTROL_PERIOD
 
-        # Scalar arithmetic on the model's closed forms: on 3-vectors numpy's
-        # per-call cost is most of the work.
-        x, xd, q, qdot = x.tolist(), xd.tolist(), q.tolist(), qdot.tolist()
         J, jdot_qdot, M, h = self._model.evaluate_rows(q, qdot)
         target = (x_d, c.y_desired, c.phi_desired)
         u_x = [c.position_gain * (target[i] - x[i]) - c.velocity_gain * xd[i] for i in range(3)]
@@ -224,8 +228,38 @@ class HybridController(LeafSystem):
         tau = [tau[i] + M[i][0] * qddot[0] + M[i][1] * qddot[1] + M[i][2] * qddot[2]
                + J[0][i] * force_x for i in range(3)]
 
-        state.get_mutable_vector(self._tau_group).SetFromVector(self._model.command(tau))
-        state.get_mutable_vector(self._mode_group).SetAtIndex(0, mode)
-        state.get_mutable_vector(self._info_group).SetFromVector(info)
-        state.get_mutable_vector(self._jacobian_group).SetFromVector(J[0] + J[1] + J[2])
-        state.get_mutable_vector(self._internal).SetFromVector([timer, x_d, error_sum])
+        output.SetFromVector(self._model.command(tau) + [mode] + info + J[0] + J[1] + J[2]
+                             + [timer, x_d, error_sum])
+
+
+class HybridController(Diagram):
+    """The thesis's approach and contact controllers, sampled every 1 ms.
+
+    Input ports (measured signals):
+      tip_pose (3): [x, y, phi] (m, rad); tip_velocity (3) (m/s, rad/s);
+      joint_positions (3) (rad); joint_velocities (3) (rad/s);
+      force (1): the DSP's filtered force (N); force_desired (1) (N);
+      stiffness_estimate (1): k_e for the decoupled law (N/m).
+    Output ports (this sample's values, held between samples):
+      joint_torque_commanded (3) (N m); mode (1): 0 approach, 1 contact;
+      tip_jacobian (9): this sample's J of [x, y, phi] w.r.t. q, row-major,
+        from the controller's model (for the compensator's J^T n);
+      contact_info (4): [time of the first switch (s) or -1, x, y, phi at
+        the latest switch] for the reference generator and identifiers.
+
+    A sub-diagram: the law (:class:`HybridControlLaw`, one Python
+    evaluation per sample) and a Demultiplexer that names its outputs.
+    """
+
+    def __init__(self, config: HybridControllerConfig):
+        super().__init__()
+        builder = DiagramBuilder()
+        law = builder.AddNamedSystem("law", HybridControlLaw(config))
+        split = builder.AddNamedSystem("outputs", Demultiplexer([3, 1, 4, 9, 3]))
+        builder.Connect(law.get_output_port(), split.get_input_port())
+        for port in range(law.num_input_ports()):
+            builder.ExportInput(law.get_input_port(port), law.get_input_port(port).get_name())
+        for index, name in enumerate(("joint_torque_commanded", "mode", "contact_info",
+                                      "tip_jacobian")):
+            builder.ExportOutput(split.get_output_port(index), name)
+        builder.BuildInto(self)

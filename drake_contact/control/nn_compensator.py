@@ -36,18 +36,15 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from pydrake.systems.framework import LeafSystem
+from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import Demultiplexer
 
-from drake_contact.plant.arm import CONTROL_PERIOD, CONTROL_SAMPLE_LEAD
+from drake_contact.plant.arm import CONTROL_PERIOD, DeclareSampledUpdate, is_sample_time
 from drake_contact.errors import ScenarioError
 from drake_contact.resources import models_dir
 
 INPUTS, HIDDEN, OUTPUTS = 9, 12, 3
 OUTPUT_LAYERS = ("text", "appendix_e")
-#: The compensator samples after the hybrid controller (which samples
-#: CONTROL_SAMPLE_LEAD before each plant step) and before the plant step, so
-#: it reads this sample's tau_h and J, as the thesis's code does.
-COMPENSATOR_SAMPLE_OFFSET = CONTROL_PERIOD - CONTROL_SAMPLE_LEAD / 2
 
 
 @dc.dataclass
@@ -148,21 +145,16 @@ class CompensatorNetwork:
         return self.pack(W_new, V_new), n
 
 
-class NnCompensator(LeafSystem):
-    """The compensator, sampled every 1 ms just after the hybrid controller.
+class NnCompensationLaw(LeafSystem):
+    """The compensator's law as one leaf system (see :class:`NnCompensator`
+    for the ports): its single output ``compensation`` = [J^T n (3), n (3),
+    the weights after this sample's training (159)] is evaluated on the
+    inputs at a sample instant and held between them; the discrete update
+    at each sample stores the weights, the pose (next sample's previous
+    pose) and the held outputs.
 
-    Input ports:
-      tip_pose (3): measured [x, y, phi] (m, rad);
-      tip_jacobian (9): J of [x, y, phi] w.r.t. q, row-major (the hybrid
-        controller's, this sample);
-      hybrid_torque (3): the hybrid part's motor commands tau_h (N m);
-      force (1): the DSP's filtered force (N); force_desired (1) (N);
-      mode (1): the controller's mode (1 = contact).
-    Output ports (state outputs):
-      joint_torque (3): J^T n (N m), zero outside contact;
-      nn_output (3): n = [n_x (N), n_y (N), n_phi (N m)].
-    State: the weights (159), the previous tip pose, n and J^T n.
-    Targets y_d = phi_d = 0 (the hybrid controller's).
+    State groups: 0 the weights (159), 1 the previous tip pose (3), 2 the
+    held [J^T n, n] (6).
     """
 
     def __init__(self, config: NnCompensatorConfig, y_desired=0.0, phi_desired=0.0):
@@ -180,31 +172,76 @@ class NnCompensator(LeafSystem):
         W, V = load_initial_weights(config.initial_weights)
         self._weights = self.DeclareDiscreteState(CompensatorNetwork.pack(W, V))
         self._previous_pose = self.DeclareDiscreteState(3)
-        self._torque = self.DeclareDiscreteState(3)
-        self._output = self.DeclareDiscreteState(3)
-        self.DeclarePeriodicDiscreteUpdateEvent(CONTROL_PERIOD, COMPENSATOR_SAMPLE_OFFSET,
-                                                self._update)
-        self.DeclareStateOutputPort("joint_torque", self._torque)
-        self.DeclareStateOutputPort("nn_output", self._output)
+        self._held = self.DeclareDiscreteState(6)
+        self._size = 6 + len(CompensatorNetwork.pack(W, V))
+        self._compensation = self.DeclareVectorOutputPort(
+            "compensation", self._size, self._calc_compensation,
+            prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket(),
+                                   self.time_ticket()})
+        DeclareSampledUpdate(self, self._update)
 
-    def _update(self, context, state):
-        pose = self._pose.Eval(context)
-        state.get_mutable_vector(self._previous_pose).SetFromVector(pose)
-        if self._mode.Eval(context)[0] < 0.5:
-            state.get_mutable_vector(self._torque).SetZero()
-            state.get_mutable_vector(self._output).SetZero()
+    def _calc_compensation(self, context, output):
+        weights = context.get_discrete_state(self._weights).value()
+        value = output.get_mutable_value()
+        value[6:] = weights
+        if not is_sample_time(context.get_time()):
+            value[:6] = context.get_discrete_state(self._held).value()
             return
+        if self._mode.Eval(context)[0] < 0.5:
+            value[:6] = 0.0
+            return
+        pose = self._pose.Eval(context)
         previous = context.get_discrete_state(self._previous_pose).value()
         inputs = np.concatenate([pose, previous, self._tau_h.Eval(context)])
-        weights = context.get_discrete_state(self._weights).value()
         if self._learning:
             error = np.concatenate([
                 [self._force_desired.Eval(context)[0] - self._force.Eval(context)[0]],
                 self._targets - pose[1:]])
             new_weights, n = self._net.train(weights, inputs, error)
-            state.get_mutable_vector(self._weights).SetFromVector(new_weights)
+            value[6:] = new_weights
         else:
             n = self._net.forward(weights, inputs)[0]
         J = self._jacobian.Eval(context).reshape(3, 3)
-        state.get_mutable_vector(self._torque).SetFromVector(J.T @ n)
-        state.get_mutable_vector(self._output).SetFromVector(n)
+        value[:3] = J.T @ n
+        value[3:6] = n
+
+    def _update(self, context, state):
+        if not is_sample_time(context.get_time()):
+            return  # t = 0: the first sample is at 1 ms
+        compensation = self._compensation.Eval(context)
+        state.get_mutable_vector(self._weights).SetFromVector(compensation[6:])
+        state.get_mutable_vector(self._previous_pose).SetFromVector(self._pose.Eval(context))
+        state.get_mutable_vector(self._held).SetFromVector(compensation[:6])
+
+
+class NnCompensator(Diagram):
+    """The compensator, sampled every 1 ms in the same event as the hybrid
+    controller, whose outputs of this sample it reads.
+
+    Input ports:
+      tip_pose (3): measured [x, y, phi] (m, rad);
+      tip_jacobian (9): J of [x, y, phi] w.r.t. q, row-major (the hybrid
+        controller's, this sample);
+      hybrid_torque (3): the hybrid part's motor commands tau_h (N m);
+      force (1): the DSP's filtered force (N); force_desired (1) (N);
+      mode (1): the controller's mode (1 = contact).
+    Output ports (this sample's values, held between samples):
+      joint_torque (3): J^T n (N m), zero outside contact;
+      nn_output (3): n = [n_x (N), n_y (N), n_phi (N m)].
+    State: the weights (159), the previous tip pose, the held outputs.
+    Targets y_d = phi_d = 0 (the hybrid controller's). A sub-diagram: the
+    law (:class:`NnCompensationLaw`) and a Demultiplexer naming its outputs.
+    """
+
+    def __init__(self, config: NnCompensatorConfig, y_desired=0.0, phi_desired=0.0):
+        super().__init__()
+        builder = DiagramBuilder()
+        law = builder.AddNamedSystem("law", NnCompensationLaw(config, y_desired, phi_desired))
+        size = law.get_output_port().size()
+        split = builder.AddNamedSystem("outputs", Demultiplexer([3, 3, size - 6]))
+        builder.Connect(law.get_output_port(), split.get_input_port())
+        for port in range(law.num_input_ports()):
+            builder.ExportInput(law.get_input_port(port), law.get_input_port(port).get_name())
+        builder.ExportOutput(split.get_output_port(0), "joint_torque")
+        builder.ExportOutput(split.get_output_port(1), "nn_output")
+        builder.BuildInto(self)

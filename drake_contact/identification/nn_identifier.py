@@ -35,7 +35,7 @@ import dataclasses as dc
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-from drake_contact.plant.arm import CONTROL_PERIOD, CONTROL_SAMPLE_OFFSET
+from drake_contact.plant.arm import CONTROL_PERIOD, DeclareSampledUpdate
 from drake_contact.errors import ScenarioError
 
 HIDDEN = 4
@@ -143,8 +143,7 @@ class NnIdentifier(LeafSystem):
         self._impedance = self.DeclareDiscreteState(self._net.impedance(weights))
         self._estimate = self.DeclareDiscreteState(1)
         self._switch = self.DeclareDiscreteState(2)
-        self.DeclarePeriodicDiscreteUpdateEvent(CONTROL_PERIOD, CONTROL_SAMPLE_OFFSET,
-                                                self._update)
+        DeclareSampledUpdate(self, self._update)
         self.DeclareStateOutputPort("impedance", self._impedance)
         self.DeclareStateOutputPort("force_estimate", self._estimate)
 

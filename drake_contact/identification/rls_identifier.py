@@ -27,7 +27,7 @@ import dataclasses as dc
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-from drake_contact.plant.arm import CONTROL_PERIOD, CONTROL_SAMPLE_OFFSET
+from drake_contact.plant.arm import CONTROL_PERIOD, DeclareSampledUpdate
 from drake_contact.errors import ScenarioError
 
 
@@ -103,8 +103,7 @@ class RlsIdentifier(LeafSystem):
         self._contact = self.DeclareVectorInputPort("contact_info", 4)
         self._impedance = self.DeclareDiscreteState(init.theta[:3])
         self._state = self.DeclareDiscreteState(np.concatenate([init.theta, init.P.ravel()]))
-        self.DeclarePeriodicDiscreteUpdateEvent(CONTROL_PERIOD, CONTROL_SAMPLE_OFFSET,
-                                                self._update)
+        DeclareSampledUpdate(self, self._update)
         self.DeclareStateOutputPort("impedance", self._impedance)
 
     def _update(self, context, state):

@@ -18,12 +18,77 @@ from drake_contact.resources import arm_urdf_path
 #: Controller sample period (s): every controller runs at 1 kHz.
 CONTROL_PERIOD = 1e-3
 
-#: Controllers sample this long before each 1 ms plant step, so the torque
-#: they compute from the measurements at t_n acts from t_n on: the DSP's
-#: computation time is neglected (in Drake a discrete update at t_n is only
-#: seen by others after t_n, which would add a whole sample of delay).
-CONTROL_SAMPLE_LEAD = 1e-6
-CONTROL_SAMPLE_OFFSET = CONTROL_PERIOD - CONTROL_SAMPLE_LEAD
+#: Sampling: every controller and identifier is sampled at each whole
+#: millisecond t_n, in the same event as the plant step from t_n. Its law is
+#: an output computed from the inputs at t_n (the plant's state after its
+#: previous step, the sensors' and filters' states), held between samples,
+#: so the torque it computes acts from t_n on (the DSP's computation time is
+#: neglected); its own state (mode, integrators, weights) is updated at t_n
+#: from the same evaluation. One event time per millisecond. The first
+#: sample is at 1 ms: the estimator's differences and filters need one
+#: sample of history (before their first update their state is zero).
+FIRST_SAMPLE_S = CONTROL_PERIOD
+
+
+def DeclareSampledUpdate(system, update):
+    """Declares ``update(context, discrete_values)`` on ``system`` at every
+    1 kHz sample instant, as Drake's periodic *unrestricted* update.
+
+    Why unrestricted: at an event time Drake applies the discrete
+    MultibodyPlant's step before it computes the other systems' discrete
+    updates (a discrete update at t_n that reads the plant's state sees
+    x_(n+1); measured), while an unrestricted update sees the state at t_n,
+    the same values the plant's step read through the controller's output.
+    So the controller's stored state (mode, integral, weights) is the one its
+    output drove the arm with, and identifiers see what the controller saw.
+    """
+    system.DeclarePeriodicUnrestrictedUpdateEvent(
+        CONTROL_PERIOD, 0.0,
+        lambda context, state: update(context, state.get_mutable_discrete_state()))
+    system._sampled_update = update
+
+
+def CalcSampledUpdate(system, context):
+    """The discrete state a leaf ``system`` declared with
+    :func:`DeclareSampledUpdate` takes at the sample at ``context``'s time
+    (a new DiscreteValues; the context is not changed). For tests and
+    step-by-step use outside a Simulator."""
+    values = context.get_discrete_state().Clone()
+    system._sampled_update(context, values)
+    return values
+
+
+def ApplySampledUpdates(system, context):
+    """Computes the sample at ``context``'s time for every leaf of
+    ``system`` (a leaf or a Diagram, ``context`` its own) declared with
+    :func:`DeclareSampledUpdate`, all from the same context, then stores
+    them in it, as a Simulator does at a sample instant."""
+    leaves = [system] if not hasattr(system, "GetSystems") else list(_leaves(system))
+    updates = []
+    for leaf in leaves:
+        if hasattr(leaf, "_sampled_update"):
+            leaf_context = leaf.GetMyMutableContextFromRoot(context) if leaf is not system \
+                else context
+            updates.append((leaf_context, CalcSampledUpdate(leaf, leaf_context)))
+    for leaf_context, values in updates:
+        leaf_context.SetDiscreteState(values)
+
+
+def _leaves(diagram):
+    for system in diagram.GetSystems():
+        if hasattr(system, "GetSystems"):
+            yield from _leaves(system)
+        else:
+            yield system
+
+
+def is_sample_time(t: float) -> bool:
+    """True at the 1 kHz sample instants from FIRST_SAMPLE_S on (whole
+    multiples of the period, as Drake's periodic events compute them), False
+    before and between them (a plant step finer than 1 ms)."""
+    return (t > FIRST_SAMPLE_S - 1e-9
+            and abs(t - round(t / CONTROL_PERIOD) * CONTROL_PERIOD) <= 1e-9)
+
 
 #: Link lengths a_i (m), masses m_i (kg), COM offsets S_ix (m), Izz (kg m^2).
 LINK_LENGTHS = (0.2207, 0.1603, 0.1508)
