@@ -1,7 +1,7 @@
 """Simulating a contact diagram and writing what a run produces.
 
 Building is separate from running. :func:`MakeContactDiagram` builds the
-station; :func:`AddSignalLoggers` adds a logger per signal it exports; the
+station; :func:`AddSignalLoggers` logs every signal it exports (one logger); the
 user may add systems and loggers of their own; :func:`simulate` then runs
 any diagram holding a station and its :class:`SignalLoggers`, with the
 divergence checks, and returns a :class:`RunResult` (logs, metrics, status).
@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import LogVectorOutput
+from pydrake.systems.primitives import LogVectorOutput, Multiplexer, VectorLogSink
 
 from drake_contact.app.metrics import add_stiffness_ratio, baseline_scenario, compute_metrics
 from drake_contact.app.visualization import (
@@ -63,78 +63,84 @@ class RunResult:
 
 @dc.dataclass
 class SignalLoggers:
-    """The loggers :func:`AddSignalLoggers` added: one per logged signal.
+    """The logger :func:`AddSignalLoggers` added: every logged signal of the
+    station through one Multiplexer into one 1 kHz ``VectorLogSink`` (one
+    publish per sample, not one per signal), and the column of each signal
+    in it.
 
-    :meth:`drain` moves the samples logged so far out of Drake's logs (which
-    it clears) into arrays allocated once for the whole run, so a long run
-    holds each sample once; :meth:`collect` drains and returns the log
-    dict, whose arrays are views of those."""
+    :meth:`drain` moves the samples logged so far out of Drake's log (which
+    it clears) into one array allocated once for the whole run, so a long
+    run holds each sample once; :meth:`collect` drains and returns the log
+    dict, whose arrays are views of that array."""
 
     station: ContactStation
-    # Exported port name -> its VectorLogSink.
-    loggers: dict
-    # Samples drained so far: times, and per port an (n, size) array.
+    # The VectorLogSink of all logged signals, in ``columns`` order.
+    sink: VectorLogSink
+    # Exported port name -> its columns (a slice) in the sink's vector.
+    columns: dict
+    # Samples drained so far: times, and an (n, all columns) array.
     _times: np.ndarray = dc.field(default_factory=lambda: np.empty(0), repr=False)
-    _buffers: dict = dc.field(default_factory=dict, repr=False)
+    _buffer: np.ndarray = dc.field(default_factory=lambda: np.empty((0, 0)), repr=False)
     _n: int = 0
 
     def reserve(self, samples: int):
         """Allocates room for ``samples`` samples of every signal."""
         if samples > len(self._times):
+            width = self.sink.get_input_port().size()
             self._times = np.resize(self._times, samples)
-            for name, logger in self.loggers.items():
-                size = self.station.signals[name].size
-                old = self._buffers.get(name, np.empty((0, size)))
-                self._buffers[name] = np.empty((samples, size))
-                self._buffers[name][:self._n] = old[:self._n]
+            old = self._buffer
+            self._buffer = np.empty((samples, width))
+            if self._n:
+                self._buffer[:self._n] = old[:self._n]
 
     def drain(self, context):
-        """Moves the new samples of every logger at ``context`` into the
-        arrays (growing them if needed) and clears Drake's logs."""
-        logs = {name: logger.FindMutableLog(context) for name, logger in self.loggers.items()}
-        counts = {log.num_samples() for log in logs.values()}
-        # The loggers publish in one event: they hold the same number of
-        # samples, unless Ctrl-C stopped the simulator inside that event,
-        # when some hold one more. That last sample is incomplete: dropped.
-        k = min(counts)
-        if max(counts) > k + 1:
-            raise RuntimeError(f"the signal loggers hold different numbers of samples: {counts}")
+        """Moves the new samples at ``context`` into the array (growing it
+        if needed) and clears Drake's log."""
+        log = self.sink.FindMutableLog(context)
+        k = log.num_samples()
+        if k == 0:
+            return
         end = self._n + k
-        if k > 0:
-            self.reserve(max(end, 2 * len(self._times)) if end > len(self._times) else end)
-            self._times[self._n:end] = logs["joint_state_true"].sample_times()[:k]
-        for name, log in logs.items():
-            if k > 0:
-                self._buffers[name][self._n:end] = log.data()[:, :k].T
-            log.Clear()
+        if end > len(self._times):
+            self.reserve(max(end, 2 * len(self._times)))
+        self._times[self._n:end] = log.sample_times()
+        self._buffer[self._n:end] = log.data().T
+        log.Clear()
         self._n = end
 
     def latest(self, name, samples):
-        """(times, (samples, size) array) of the last ``samples`` drained."""
+        """(times, (samples, size) array) of signal ``name``'s last
+        ``samples`` drained."""
         start = max(self._n - samples, 0)
-        return self._times[start:self._n], self._buffers[name][start:self._n]
+        return self._times[start:self._n], self._buffer[start:self._n, self.columns[name]]
 
     def collect(self, context) -> dict:
         """The log dict at ``context``: ``t`` and every log key."""
         self.drain(context)
         n = self._n
         out = {"t": self._times[:n]}
-        for name, buffer in self._buffers.items():
-            for key, columns in self.station.signals[name].log_as.items():
-                out[key] = buffer[:n, columns]
+        for name, columns in self.columns.items():
+            signal = self._buffer[:n, columns]
+            for key, part in self.station.signals[name].log_as.items():
+                out[key] = signal[:, part]
         add_stiffness_ratio(out)
         return out
 
 
 def AddSignalLoggers(builder: DiagramBuilder, station: ContactStation) -> SignalLoggers:
-    """Adds a 1 kHz logger (named ``log_<signal>``) of every logged signal
-    of ``station``, which must be in ``builder``; returns them."""
-    loggers = {}
-    for name, signal in station.signals.items():
-        if signal.log_as:
-            loggers[name] = LogVectorOutput(station.GetOutputPort(name), builder, CONTROL_PERIOD)
-            loggers[name].set_name(f"log_{name}")
-    return SignalLoggers(station, loggers)
+    """Adds a 1 kHz logger (``log_signals``, fed by the Multiplexer
+    ``log_signals_mux``) of every logged signal of ``station``, which must
+    be in ``builder``; returns it."""
+    names = [name for name, signal in station.signals.items() if signal.log_as]
+    sizes = [station.signals[name].size for name in names]
+    mux = builder.AddNamedSystem("log_signals_mux", Multiplexer(sizes))
+    for index, name in enumerate(names):
+        builder.Connect(station.GetOutputPort(name), mux.get_input_port(index))
+    sink = LogVectorOutput(mux.get_output_port(), builder, CONTROL_PERIOD)
+    sink.set_name("log_signals")
+    offsets = np.concatenate([[0], np.cumsum(sizes)])
+    columns = {name: slice(int(offsets[i]), int(offsets[i + 1])) for i, name in enumerate(names)}
+    return SignalLoggers(station, sink, columns)
 
 
 def MakeRunDiagram(scenario: Scenario, *, meshcat=None):
