@@ -70,14 +70,15 @@ def test_a_long_scenario_is_capped_unless_a_duration_is_asked_for():
 def test_the_profile_lists_the_station_python_systems(profile):
     by_path = {s.path: s for s in profile.systems}
     for path, cls in [("station/force_sensor/force_sensor", "ForceSensor"),
-                      ("station/wall", "CompliantWall"),
-                      ("station/controller", "HybridController"),
-                      ("station/nn_compensator", "NnCompensator"),
-                      ("station/tip_kinematics", "TipKinematics")]:
+                      ("station/controller/law", "HybridControlLaw"),
+                      ("station/nn_compensator/law", "NnCompensationLaw")]:
         assert by_path[path].class_name == cls
         assert by_path[path].calls_per_step > 0 and by_path[path].us_per_step > 0
-    # A periodic update at 1 kHz: once per 1 ms plant step.
-    assert by_path["station/controller"].calls_per_step == pytest.approx(1.0, abs=0.01)
+    # The law's output and its sampled update: twice per 1 ms plant step
+    # (the law itself is evaluated once, cached).
+    assert by_path["station/controller/law"].calls_per_step == pytest.approx(2.0, abs=0.01)
+    # The tip kinematics run in C++ (SymbolicVectorSystems): not listed.
+    assert not any(s.path.startswith("station/tip_kinematics") for s in profile.systems)
     times = [s.us_per_step for s in profile.systems]
     assert times == sorted(times, reverse=True)
     assert 0 < profile.systems_us <= profile.total_us
