@@ -61,6 +61,98 @@ def test_modes_build_the_expected_channels():
         assert dsp.HasOutputPort("force_filtered") and dsp.HasOutputPort("force_measured")
 
 
+class ReferenceDsp:
+    """The former Python LeafSystem's arithmetic, operation for operation:
+    DspForceInput (a SymbolicVectorSystem) must match it bit for bit."""
+
+    def __init__(self, config, channels):
+        self.config, self.k = config, channels
+        self.lsb = 2.0 * config.adc_range_v / 2 ** config.adc_bits
+        self.state = np.zeros(2 * channels + 1)
+
+    def reading(self, voltage):
+        v = np.clip(voltage, -self.config.adc_range_v, self.config.adc_range_v - self.lsb)
+        return -self.config.scale_n_per_v * np.floor(v / self.lsb + 0.5) * self.lsb
+
+    def force(self, voltage):
+        if self.state[self.k] == 0:
+            return np.zeros(self.k)
+        return self.reading(voltage) - self.state[self.k + 1:]
+
+    def update(self, t, voltage):
+        k, state = self.k, self.state.copy()
+        if t < self.config.tare_window_s - 1e-9:
+            state[:k] += self.reading(voltage)
+            state[k] += 1
+            state[k + 1:] = state[:k] / state[k]
+        self.state = state
+
+
+def bits(values):
+    return np.asarray(values, dtype=float).view(np.int64)
+
+
+def bit_identity_cases():
+    rng = np.random.default_rng(1)
+    for trial in range(16):
+        channels = 1 + trial % 2
+        config = DspConfig()
+        if trial >= 4:
+            config.adc_bits = int(rng.integers(2, 25))
+            config.adc_range_v = float(rng.choice([10.0, 3.3, rng.uniform(0.1, 20.0)]))
+            config.scale_n_per_v = float(rng.choice([200.0, 123.456, rng.uniform(1.0, 500.0)]))
+            config.tare_window_s = float(rng.choice([0.001, 0.05, rng.uniform(0.001, 0.1)]))
+        lsb = 2.0 * config.adc_range_v / 2 ** config.adc_bits
+        shape = (150, channels)
+        kind = trial % 4
+        if kind == 0:  # at rest: offset plus noise
+            volts = 0.015 + 0.004 * rng.normal(size=shape)
+        elif kind == 1:  # over the whole range and beyond (clipping)
+            volts = rng.uniform(-1.5, 1.5, size=shape) * config.adc_range_v
+        elif kind == 2:  # on and half-way between the ADC's levels; signed zeros
+            half = 2 ** (config.adc_bits - 1)
+            volts = (rng.integers(-half - 3, half + 3, size=shape)
+                     + rng.choice([0.0, 0.5, -0.5], size=shape)) * lsb
+            volts[rng.random(size=shape) < 0.2] = 0.0
+            volts[rng.random(size=shape) < 0.1] = -0.0
+        else:  # zero force (a zero offset), infinities, NaN
+            volts = np.zeros(shape)
+            volts[::3] = -0.0
+            volts[60:] = 0.01 * rng.normal(size=(shape[0] - 60, channels))
+            volts[70], volts[80], volts[90] = np.inf, -np.inf, np.nan
+        yield config, channels, volts
+
+
+@pytest.mark.parametrize("case", range(16))
+def test_bit_identical_to_the_python_reference(case):
+    config, channels, volts = list(bit_identity_cases())[case]
+    dsp = DspForceInput(config, channels)
+    reference = ReferenceDsp(config, channels)
+    context = dsp.CreateDefaultContext()
+    for n, voltage in enumerate(volts):
+        t = n * 1e-3
+        context.SetTime(t)
+        dsp.GetInputPort("voltage").FixValue(context, voltage)
+        force = dsp.GetOutputPort("force").Eval(context)
+        assert np.array_equal(bits(force), bits(reference.force(voltage))), (n, force)
+        state = dsp.EvalUniquePeriodicDiscreteUpdate(context).get_vector().value().copy()
+        reference.update(t, voltage)
+        assert np.array_equal(bits(state), bits(reference.state)), (n, state)
+        context.SetDiscreteState(state)
+
+
+def test_no_python_runs_per_step():
+    # A Drake system throughout (no Python LeafSystem), 1 kHz, like the original.
+    dsp = DspForceInput(DspConfig(), 2)
+    assert dsp.num_input_ports() == 1 and dsp.GetInputPort("voltage").size() == 2
+    assert dsp.num_output_ports() == 1 and dsp.GetOutputPort("force").size() == 2
+    for system in dsp.GetSystems():
+        assert type(system).__module__.startswith("pydrake"), system.get_name()
+    event = dsp.GetUniquePeriodicDiscreteUpdateAttribute()
+    assert (event.period_sec(), event.offset_sec()) == (1e-3, 0.0)
+    assert dsp.HasDirectFeedthrough(0, 0)
+
+
 @pytest.mark.parametrize("path,value,words", [
     ("anti_aliasing.mode", "always", "dsp.anti_aliasing.mode = 'always' is unknown"),
     ("anti_aliasing.R1", -1.0, "dsp.anti_aliasing.R1 = -1.0 is out of range"),

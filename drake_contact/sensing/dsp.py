@@ -23,8 +23,11 @@ sample, as in the thesis's interrupt routine.
 import dataclasses as dc
 
 import numpy as np
-from pydrake.systems.framework import DiagramBuilder, LeafSystem
-from pydrake.systems.primitives import Demultiplexer, Multiplexer, PassThrough
+from pydrake.symbolic import Variable, floor, if_then_else
+from pydrake.symbolic import max as sym_max, min as sym_min
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import (
+    Demultiplexer, Multiplexer, PassThrough, SymbolicVectorSystem)
 
 from drake_contact.blocks import AddSubdiagram
 from drake_contact.plant.arm import CONTROL_PERIOD
@@ -89,7 +92,7 @@ class DspConfig:
         self.anti_aliasing.validate(f"{prefix}.anti_aliasing")
 
 
-class DspForceInput(LeafSystem):
+class DspForceInput(Diagram):
     """16-bit ADC, scale, sign flip and tare on ``channels`` voltages, 1 kHz.
 
     Input ports:
@@ -97,44 +100,56 @@ class DspForceInput(LeafSystem):
     Output ports:
       force (channels): -scale * ADC(voltage) - offset (N).
     State (discrete): tare sum (channels), sample count (1), offset (channels).
+
+    A Drake ``SymbolicVectorSystem`` (inside this diagram, named
+    ``adc_tare``) computes it: no Python runs per step. The expressions do the
+    floating-point operations of the former Python LeafSystem (kept as
+    the reference in ``tests/test_dsp.py``) in the same order, so the results
+    are bit-identical (that test checks it): Drake folds
+    constant factors of a product (``-scale * n * lsb`` would become
+    ``(-scale * lsb) * n``), which an opaque ``max(., -inf)`` around
+    ``-scale * n`` prevents, and a sum starts at +0 (``0 + -0 = +0``), which
+    the ``offset == 0`` branch of the output keeps from changing the sign of
+    a zero force.
     """
 
     def __init__(self, config: DspConfig, channels=1):
         super().__init__()
         self._config = config
-        self._k = channels
-        self._lsb = 2.0 * config.adc_range_v / 2 ** config.adc_bits
-        self._voltage = self.DeclareVectorInputPort("voltage", channels)
-        self.DeclareDiscreteState(2 * channels + 1)
-        self.DeclarePeriodicDiscreteUpdateEvent(CONTROL_PERIOD, 0.0, self._tare)
-        self.DeclareVectorOutputPort(
-            "force", channels, self._calc_force,
-            prerequisites_of_calc={self._voltage.ticket(), self.xd_ticket()})
+        self._k = k = channels
+        self._lsb = lsb = 2.0 * config.adc_range_v / 2 ** config.adc_bits
+        t = Variable("t")
+        voltage = [Variable(f"voltage_{i}") for i in range(k)]
+        total = [Variable(f"tare_sum_{i}") for i in range(k)]
+        count = Variable("tare_count")
+        offset = [Variable(f"tare_offset_{i}") for i in range(k)]
+        hi = config.adc_range_v - lsb
+        # -scale * floor(clip(v) / lsb + 0.5) * lsb, as ((-scale * n) * lsb).
+        reading = [_opaque(-config.scale_n_per_v * floor(
+            sym_min(sym_max(v, -config.adc_range_v), hi) / lsb + 0.5)) * lsb for v in voltage]
+        taring = t < config.tare_window_s - 1e-9
+        dynamics = ([if_then_else(taring, s + r, s) for s, r in zip(total, reading)]
+                    + [if_then_else(taring, count + 1, count)]
+                    + [if_then_else(taring, (s + r) / (count + 1), o)
+                       for s, r, o in zip(total, reading, offset)])
+        # Before the first tare sample (count 0) the offset is this very
+        # reading: 0 N. The offset is never -0 (the sum starts at +0), so
+        # reading - 0 is the reading itself.
+        output = [if_then_else(count == 0, 0.0, if_then_else(o == 0, r, r - o))
+                  for r, o in zip(reading, offset)]
+        builder = DiagramBuilder()
+        adc = builder.AddNamedSystem("adc_tare", SymbolicVectorSystem(
+            time=t, state=total + [count] + offset, input=voltage, dynamics=dynamics,
+            output=output, time_period=CONTROL_PERIOD))
+        builder.ExportInput(adc.get_input_port(), "voltage")
+        builder.ExportOutput(adc.get_output_port(), "force")
+        builder.BuildInto(self)
 
-    def _reading(self, context):
-        """The ADC reading in N (before tare)."""
-        v = np.clip(self._voltage.Eval(context), -self._config.adc_range_v,
-                    self._config.adc_range_v - self._lsb)
-        return -self._config.scale_n_per_v * np.floor(v / self._lsb + 0.5) * self._lsb
 
-    def _tare(self, context, discrete_state):
-        k = self._k
-        state = context.get_discrete_state_vector().value().copy()
-        if context.get_time() < self._config.tare_window_s - 1e-9:
-            state[:k] += self._reading(context)
-            state[k] += 1
-            state[k + 1:] = state[:k] / state[k]
-        discrete_state.set_value(state)
-
-    def _calc_force(self, context, output):
-        k = self._k
-        state = context.get_discrete_state_vector().value()
-        reading = self._reading(context)
-        if state[k] == 0:
-            # Before the first tare sample: the offset is this very reading.
-            output.SetFromVector(np.zeros(k))
-        else:
-            output.SetFromVector(reading - state[k + 1:])
+def _opaque(e):
+    """``e`` behind a node Drake's simplifier does not see through:
+    max(e, -inf) is e for every e (NaN included), one comparison."""
+    return sym_max(e, -np.inf)
 
 
 def AddDspForceInput(builder: DiagramBuilder, config: DspConfig, fine_period, ticks, *,
