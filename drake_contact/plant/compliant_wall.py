@@ -34,8 +34,9 @@ temperature and humidity), K_e(t) = K_e (1 + stiffness_drift_per_s t).
 import dataclasses as dc
 
 import numpy as np
-from pydrake.common.value import Value
-from pydrake.systems.framework import BasicVector, LeafSystem, ValueProducer
+import pydrake.symbolic as sym
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import Demultiplexer, SymbolicVectorSystem
 
 from drake_contact.errors import ScenarioError
 
@@ -99,13 +100,17 @@ class EnvironmentConfig:
                 f"must keep K_e > 0 over the run: > {-1 / duration:.4g} 1/s")
 
 
-# Indices into the wall's discrete state. K_e(t) is state (updated every
-# step) so that nothing the wall outputs depends on time: the sensor's fine
-# 12 kHz clock then reuses the cached force instead of calling Python.
-_S, _SD, _ACC, _VPREV, _K = range(5)
+# The wall's discrete state: free-surface displacement and velocity,
+# smoothed tip acceleration, previous tip x-velocity, and the time at which
+# K_e(t) holds over this step (the update time + h; 0 before the first
+# update, so that the all-zero default state starts at K_e(0) = K_e).
+STATE_NAMES = ("surface_displacement", "surface_velocity", "tip_acceleration_smoothed",
+               "tip_velocity_previous", "stiffness_time")
+#: The contact law's outputs, in the order of its output vector.
+OUTPUT_SIZES = {"force_on_tip": 3, "contact_force": 1, "penetration": 1, "true_impedance": 3}
 
 
-class CompliantWall(LeafSystem):
+class CompliantWall(Diagram):
     """A unilateral mass-spring-damper wall, stepped at the plant's step.
 
     Input ports:
@@ -116,8 +121,17 @@ class CompliantWall(LeafSystem):
       contact_force (1): true normal force f >= 0 (N).
       penetration (1): true surface displacement xe (m), 0 out of contact.
       true_impedance (3): [M_e, B_e, K_e(t)] (kg, N s/m, N/m), for scoring.
-    State (discrete, 5): free-surface displacement and velocity, smoothed tip
-      acceleration, previous tip x-velocity, K_e at this step.
+    State (discrete, 5, see :data:`STATE_NAMES`): free-surface displacement
+      and velocity, smoothed tip acceleration, previous tip x-velocity, and
+      the time K_e(t) is taken at over this step.
+
+    No Python runs while it simulates: the law and the state update are
+    symbolic expressions that a ``SymbolicVectorSystem`` (``contact_law``,
+    holding the state) evaluates in C++, and a ``Demultiplexer``
+    (``outputs``) splits its output vector into the four ports. The
+    expressions perform the floating-point operations of the former Python
+    implementation in its order, so results are bit-identical to it (see
+    :func:`contact_law_expressions`).
     """
 
     def __init__(self, config: EnvironmentConfig, time_step: float):
@@ -125,20 +139,17 @@ class CompliantWall(LeafSystem):
         config.validate()
         self._config = config
         self._h = float(time_step)
-        self._tip = self.DeclareVectorInputPort("tip_state", 6)
-        self.DeclareDiscreteState([0.0, 0.0, 0.0, 0.0, config.stiffness])
-        self.DeclarePeriodicDiscreteUpdateEvent(self._h, 0.0, self._update)
-        # All outputs share one evaluation of the contact law, which reads the
-        # input and the state only (not time).
-        self._law_cache = self.DeclareCacheEntry(
-            description="contact law",
-            value_producer=_value_producer(self._calc_law, 9),
-            prerequisites_of_calc={self._tip.ticket(), self.xd_ticket()})
-        law = {self._law_cache.ticket()}
-        self.DeclareVectorOutputPort("force_on_tip", 3, self._calc_force_on_tip, law)
-        self.DeclareVectorOutputPort("contact_force", 1, self._calc_contact_force, law)
-        self.DeclareVectorOutputPort("penetration", 1, self._calc_penetration, law)
-        self.DeclareVectorOutputPort("true_impedance", 3, self._calc_true_impedance, law)
+        t, state, tip, dynamics, outputs = contact_law_expressions(config, self._h)
+        builder = DiagramBuilder()
+        law = builder.AddNamedSystem("contact_law", SymbolicVectorSystem(
+            time=t, state=state, input=tip, dynamics=dynamics, output=outputs,
+            time_period=self._h))
+        split = builder.AddNamedSystem("outputs", Demultiplexer(list(OUTPUT_SIZES.values())))
+        builder.Connect(law.get_output_port(), split.get_input_port())
+        builder.ExportInput(law.get_input_port(), "tip_state")
+        for i, name in enumerate(OUTPUT_SIZES):
+            builder.ExportOutput(split.get_output_port(i), name)
+        builder.BuildInto(self)
 
     @property
     def config(self) -> EnvironmentConfig:
@@ -148,71 +159,84 @@ class CompliantWall(LeafSystem):
         """True K_e (N/m) at time t, including the drift."""
         return self._config.stiffness * (1.0 + self._config.stiffness_drift_per_s * t)
 
-    # The law: [fx, fy, tau_z, f_normal, xe, M, B, K, touching].
-    def _calc_law(self, context, out: BasicVector):
-        c = self._config
-        x, _, _, vx, vy, _ = self._tip.Eval(context)
-        state = context.get_discrete_state_vector().value()
-        K = state[_K]
-        xe = x - c.surface_x
-        touching = xe > 0.0 and xe >= state[_S]
-        fn = 0.0
-        if touching:
-            elastic = K * xe + c.damping * vx
-            if c.law == "hunt_crossley":
-                elastic *= (xe / c.hunt_crossley_reference_penetration) ** (
-                    c.hunt_crossley_exponent - 1.0)
-            fn = max(elastic + c.mass * state[_ACC], 0.0)
-        ft = 0.0
-        if fn > 0.0 and c.friction_coefficient > 0.0:
-            ft = -c.friction_coefficient * fn * np.clip(vy / c.stiction_velocity, -1.0, 1.0)
-        out.set_value([-fn, ft, 0.0, fn, xe if touching else 0.0,
-                       c.mass, c.damping, K, 1.0 if fn > 0.0 else 0.0])
 
-    def _law(self, context):
-        return self._law_cache.Eval(context).value()
+def _held(e):
+    """``e``, evaluated to the same double, as an operand that Drake's
+    simplifier will not merge into an enclosing sum or product.
 
-    def _calc_force_on_tip(self, context, output):
-        output.SetFromVector(self._law(context)[0:3])
-
-    def _calc_contact_force(self, context, output):
-        output.SetAtIndex(0, self._law(context)[3])
-
-    def _calc_penetration(self, context, output):
-        output.SetAtIndex(0, self._law(context)[4])
-
-    def _calc_true_impedance(self, context, output):
-        output.SetFromVector(self._law(context)[5:8])
-
-    def _free_step(self, s, sd, K):
-        """One implicit-Euler step of M s'' + B s' + K s = 0."""
-        c, h = self._config, self._h
-        if c.mass > 0.0:
-            det = 1.0 + h * c.damping / c.mass + h * h * K / c.mass
-            s_next = ((1.0 + h * c.damping / c.mass) * s + h * sd) / det
-            sd_next = (sd - h * K / c.mass * s) / det
-            return s_next, sd_next
-        s_next = s / (1.0 + h * K / c.damping) if c.damping > 0.0 else 0.0
-        return s_next, (s_next - s) / h
-
-    def _update(self, context, discrete_state):
-        c, h = self._config, self._h
-        x, _, _, vx, _, _ = self._tip.Eval(context)
-        old = context.get_discrete_state_vector().value()
-        law = self._law(context)
-        K = law[7]
-        if law[8] > 0.0:
-            # In contact the surface is at the tip; it relaxes from there.
-            s, sd = self._free_step(x - c.surface_x, vx, K)
-        else:
-            s, sd = self._free_step(old[_S], old[_SD], K)
-        alpha = c.acceleration_smoothing
-        acc = alpha * old[_ACC] + (1.0 - alpha) * (vx - old[_VPREV]) / h
-        K_next = self.stiffness_at(context.get_time() + h)
-        discrete_state.set_value([s, sd, acc, vx, K_next])
+    Drake flattens sums and products (``(a + b) + c`` becomes one sum
+    whose terms it adds in its own order, ``c1 * (c2 * x)`` becomes
+    ``(c1 * c2) * x``), which would round differently from the Python
+    law; ``max(e, -inf)`` is ``e`` exactly (NaN included) and is a leaf to
+    the flattening."""
+    return sym.max(e, -np.inf)
 
 
-def _value_producer(calc, size):
-    return ValueProducer(
-        allocate=Value[BasicVector](BasicVector(size)).Clone,
-        calc=lambda context, abstract: calc(context, abstract.get_mutable_value()))
+def contact_law_expressions(config: EnvironmentConfig, h: float):
+    """The wall as symbolic expressions: returns (t, state, tip, dynamics,
+    outputs), the time, state (5) and input (6, tip_state) variables, the
+    state's update x[n+1] = dynamics(t, x[n], tip) and the output vector
+    [force_on_tip (3), contact_force, penetration, true_impedance (3)].
+
+    Each expression does the IEEE operations of the former Python law in
+    its order: constants are grouped into Python floats as the Python code
+    grouped them, two-operand sums and products only (commutative, hence
+    exact in any order), and :func:`_held` around every rounded
+    intermediate that Drake would otherwise flatten."""
+    c = config
+    t = sym.Variable("t")
+    state = np.array([sym.Variable(name) for name in STATE_NAMES])
+    tip = np.array([sym.Variable(name) for name in (
+        "x", "y", "phi", "xdot", "ydot", "phidot")])
+    s, sd, acc, v_prev, t_k = state
+    x, _, _, vx, vy, _ = tip
+
+    # K_e(t) = K_e (1 + drift t), t the time stored by the last update.
+    if c.stiffness_drift_per_s == 0.0:
+        K = float(c.stiffness)
+    else:
+        K = _held(c.stiffness * (1.0 + c.stiffness_drift_per_s * t_k))
+    xe = x - c.surface_x
+    touching = sym.logical_and(xe > 0.0, xe >= s)
+    elastic = _held(_held(K * xe) + c.damping * vx)
+    if c.law == "hunt_crossley":
+        elastic = _held(elastic * sym.pow(xe / c.hunt_crossley_reference_penetration,
+                                          c.hunt_crossley_exponent - 1.0))
+    # Python's max(a, 0.0) and std::max(a, 0.0) agree (a when not a < 0).
+    fn = sym.if_then_else(touching, sym.max(elastic + c.mass * acc, 0.0), 0.0)
+    ft = 0.0
+    if c.friction_coefficient > 0.0:
+        # np.clip(v, -1, 1) = min(max(v, -1), 1).
+        slip = sym.min(sym.max(vy / c.stiction_velocity, -1.0), 1.0)
+        ft = sym.if_then_else(fn > 0.0, _held(-c.friction_coefficient * fn) * slip, 0.0)
+    outputs = [-fn, ft, 0.0, fn, sym.if_then_else(touching, xe, 0.0),
+               c.mass, c.damping, K]
+
+    # In contact (f > 0) the surface is at the tip and relaxes from there;
+    # otherwise it relaxes from its own state: one implicit-Euler step of
+    # M s'' + B s' + K s = 0.
+    contact = fn > 0.0
+    s0 = sym.if_then_else(contact, xe, s)
+    sd0 = sym.if_then_else(contact, vx, sd)
+    if c.mass > 0.0:
+        a1 = 1.0 + h * c.damping / c.mass
+        det = a1 + _mul(h * h, K) / c.mass
+        s_next = (a1 * s0 + h * sd0) / det
+        sd_next = (sd0 - _mul(h, K) / c.mass * s0) / det
+    else:
+        s_next = s0 / (1.0 + _mul(h, K) / c.damping) if c.damping > 0.0 else 0.0
+        sd_next = (s_next - s0) / h
+    alpha = c.acceleration_smoothing
+    acc_next = alpha * acc + (1.0 - alpha) * (vx - v_prev) / h
+    dynamics = [s_next, sd_next, acc_next, vx, t + h]
+    return t, state, tip, _expressions(dynamics), _expressions(outputs)
+
+
+def _expressions(values):
+    return np.array([e if isinstance(e, sym.Expression) else sym.Expression(e)
+                     for e in values], dtype=object)
+
+
+def _mul(constant: float, K):
+    """constant * K, folded in Python when K is a constant."""
+    return constant * K if isinstance(K, float) else _held(constant * K)
