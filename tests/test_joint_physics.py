@@ -125,3 +125,55 @@ def test_lugre_slides_at_the_coulomb_level_above_it():
 def test_lugre_without_friction_gives_zero():
     friction, context = lugre_diagram(levels=(0.0, 0.0, 0.0))
     assert step_joint(friction, context, 0.117, 1.0, 100)[2] == 0.0
+
+
+def reference_lugre_step(levels, sigma0, sigma1, z, qdot, h):
+    """LuGre as the former Python LeafSystem computed it (numpy): returns
+    (torque, next z)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        decay = np.where(levels > 0, sigma0 * np.abs(qdot) / levels, 0.0)
+    rates = np.where(levels > 0, qdot - decay * z, 0.0)
+    torque = -(sigma0 * z + sigma1 * rates)
+    new = z.copy()
+    for i in range(3):
+        if levels[i] <= 0:
+            new[i] = 0.0
+        elif qdot[i] != 0.0:
+            z_slide = levels[i] * np.sign(qdot[i]) / sigma0[i]
+            rate = sigma0[i] * abs(qdot[i]) / levels[i]
+            new[i] = z_slide + (z[i] - z_slide) * np.exp(-rate * h)
+    return torque, new
+
+
+@pytest.mark.parametrize("levels,inertia", [
+    ((1.0, 0.2, 0.004), (1.03, 0.117, 0.00287)),
+    ((0.0, 0.98, 0.0), (1.03, 0.117, 0.00287)),
+    ((1.0, 1.0, 1.0), (1.0, 1.0, 1.0)),
+])
+def test_lugre_is_bit_identical_to_the_former_numpy_law(levels, inertia):
+    """The torque (C++ expressions) and the bristle update (Python, numpy's
+    exp) do the former numpy law's IEEE operations, bit for bit."""
+    from drake_contact.diagram import leaf_systems
+    from drake_contact.plant.joint_physics import LuGreFriction
+    config = JointFrictionConfig(levels=list(levels))
+    friction = LuGreFriction(config, list(inertia), 1e-3)
+    python = [s.get_name() for s in leaf_systems(friction)
+              if not type(s).__module__.startswith("pydrake")]
+    assert python == ["bristles"]
+    context = friction.CreateDefaultContext()
+    levels = np.asarray(levels, dtype=float)
+    sigma0 = np.asarray(inertia) * (2 * np.pi * config.bristle_frequency_hz) ** 2
+    sigma1 = 2 * config.bristle_damping_ratio * np.sqrt(sigma0 * np.asarray(inertia))
+    rng = np.random.default_rng(3)
+    z = np.zeros(3)
+    for n in range(1500):
+        qdot = rng.normal(0, 10.0 ** rng.uniform(-8, 0), 3) * (rng.random(3) < 0.8)
+        friction.GetInputPort("plant_state").FixValue(
+            context, np.concatenate([rng.normal(size=3), qdot]))
+        torque, z = reference_lugre_step(levels, sigma0, sigma1, z, qdot, 1e-3)
+        np.testing.assert_array_equal(
+            friction.GetOutputPort("torque").Eval(context), torque, err_msg=f"step {n}")
+        context.SetDiscreteState(friction.EvalUniquePeriodicDiscreteUpdate(context)
+                                 .get_vector().value().copy())
+        np.testing.assert_array_equal(context.get_discrete_state_vector().value(), z,
+                                      err_msg=f"step {n}")

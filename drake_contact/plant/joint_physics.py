@@ -33,8 +33,10 @@ F_c / v_s * h / M_ii < 2 (h the plant step, M_ii the joint's inertia).
 import dataclasses as dc
 
 import numpy as np
-from pydrake.systems.framework import DiagramBuilder, LeafSystem
-from pydrake.systems.primitives import AffineSystem, MatrixGain, Saturation
+import pydrake.symbolic as sym
+from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import (
+    AffineSystem, MatrixGain, Multiplexer, Saturation, SymbolicVectorSystem)
 from pydrake.systems.sensors import RotaryEncoders
 
 from drake_contact.blocks import AddSubdiagram
@@ -130,12 +132,49 @@ def check_friction_stability(config: JointFrictionConfig, mass_matrix_diagonal, 
                 f"{time_step}: joint {i + 1} needs > {v_min:.3g} rad/s to stay stable")
 
 
-class LuGreFriction(LeafSystem):
+class LuGreFriction(Diagram):
     """LuGre joint friction (no Stribeck, no viscous term), stepped at the
     plant's step.
 
     Input port: plant_state (6, [q; v]). Output port: torque (3, N m).
     State (discrete, 3): bristle deflections z (rad).
+
+    How it is computed: the friction torque, read by the plant every step,
+    is a ``SymbolicVectorSystem`` (``torque_law``) that Drake evaluates in
+    C++ from [q; v; z] (a ``Multiplexer``, ``torque_law_input``, appends z).
+    The bristles z and their update, one Python call per step, are the
+    LeafSystem :class:`LuGreBristles` (``bristles``): the exact update needs
+    numpy's exp, which on x86 with AVX-512 is numpy's own vector kernel and
+    differs from C++'s std::exp in the last bit on about 6 % of arguments
+    (which would change the simulated trajectories at the 1e-12 level).
+    The torque's expressions do the former Python law's IEEE operations in
+    its order (bit-identical).
+    """
+
+    def __init__(self, config: JointFrictionConfig, mass_matrix_diagonal, time_step):
+        super().__init__()
+        builder = DiagramBuilder()
+        bristles = builder.AddNamedSystem(
+            "bristles", LuGreBristles(config, mass_matrix_diagonal, time_step))
+        joined = builder.AddNamedSystem("torque_law_input", Multiplexer([6, 3]))
+        state, z, torque = bristles.torque_expressions()
+        law = builder.AddNamedSystem("torque_law", SymbolicVectorSystem(
+            input=np.concatenate([state, z]), output=torque))
+        builder.Connect(bristles.GetOutputPort("bristle_deflection"), joined.get_input_port(1))
+        builder.Connect(joined.get_output_port(), law.get_input_port())
+        exported = builder.ExportInput(bristles.GetInputPort("plant_state"), "plant_state")
+        builder.ConnectInput(exported, joined.get_input_port(0))
+        builder.ExportOutput(law.get_output_port(), "torque")
+        builder.BuildInto(self)
+
+
+class LuGreBristles(LeafSystem):
+    """The LuGre bristle deflections z, stepped at the plant's step, and
+    the friction torque's law as symbolic expressions (evaluated by
+    :class:`LuGreFriction`'s ``torque_law``).
+
+    Input port: plant_state (6, [q; v]). Output port: bristle_deflection
+    (3, rad), the state (no Python when read). State (discrete, 3): z (rad).
     """
 
     def __init__(self, config: JointFrictionConfig, mass_matrix_diagonal, time_step):
@@ -146,43 +185,79 @@ class LuGreFriction(LeafSystem):
         inertia = np.asarray(mass_matrix_diagonal, dtype=float)
         self._sigma0 = inertia * w**2
         self._sigma1 = 2 * config.bristle_damping_ratio * np.sqrt(self._sigma0 * inertia)
+        # For the update: z_slide for qdot > 0 and < 0 (as numpy computed
+        # F_c sgn(qdot) / sigma0), and the parameters as Python floats.
+        self._slide = [(float(level * 1.0 / sigma0), float(level * -1.0 / sigma0))
+                       for level, sigma0 in zip(self._levels, self._sigma0)]
+        self._level_list = self._levels.tolist()
+        self._sigma0_list = self._sigma0.tolist()
         self._state = self.DeclareVectorInputPort("plant_state", 6)
-        self.DeclareDiscreteState(3)
+        z = self.DeclareDiscreteState(3)
         self.DeclarePeriodicDiscreteUpdateEvent(self._h, 0.0, self._update)
-        self.DeclareVectorOutputPort(
-            "torque", 3, self._calc_torque,
-            prerequisites_of_calc={self._state.ticket(), self.xd_ticket()})
+        self.DeclareStateOutputPort("bristle_deflection", z)
 
-    def _rates(self, z, qdot):
-        """dz/dt; a joint with no friction keeps z = 0."""
-        with np.errstate(divide="ignore", invalid="ignore"):
-            decay = np.where(self._levels > 0, self._sigma0 * np.abs(qdot) / self._levels, 0.0)
-        return np.where(self._levels > 0, qdot - decay * z, 0.0)
+    def torque_expressions(self):
+        """Returns (plant_state, z, torque): the input variables [q; v] (6)
+        and z (3), and the torque (3) as expressions of them,
+        tau = -(sigma0 z + sigma1 dz/dt), with dz/dt = qdot - sigma0 |qdot|
+        z / F_c (0 for a joint with no friction, whose z stays 0).
 
-    def _calc_torque(self, context, output):
-        qdot = self._state.Eval(context)[3:]
-        z = context.get_discrete_state_vector().value()
-        output.SetFromVector(-(self._sigma0 * z + self._sigma1 * self._rates(z, qdot)))
+        Each expression does the IEEE operations of the former numpy code
+        in its order; max(e, -inf), which is e exactly, keeps Drake's
+        simplifier from flattening a rounded intermediate into a reordered
+        sum or product."""
+        state = np.array([sym.Variable(f"{kind}{i + 1}") for kind in ("q", "qdot")
+                          for i in range(3)])
+        z = np.array([sym.Variable(f"z{i + 1}") for i in range(3)])
+        torque = []
+        for i in range(3):
+            level, sigma0, sigma1 = (float(a[i]) for a in (self._levels, self._sigma0,
+                                                           self._sigma1))
+            qdot = state[3 + i]
+            if level > 0:
+                decay = _held(sigma0 * sym.abs(qdot) / level)
+                rate = _held(qdot - decay * z[i])
+                torque.append(-(sigma0 * z[i] + sigma1 * rate))
+            else:
+                torque.append(-(sigma0 * z[i] + sigma1 * 0.0))
+        return state, z, np.array(torque, dtype=object)
 
     def _update(self, context, discrete_state):
-        qdot = self._state.Eval(context)[3:]
-        z = context.get_discrete_state_vector().value()
-        new = z.copy()
-        for i in range(3):
-            if self._levels[i] <= 0:
-                new[i] = 0.0
-            elif qdot[i] != 0.0:
-                # Exact for qdot held over the step: z relaxes to its sliding value.
-                z_slide = self._levels[i] * np.sign(qdot[i]) / self._sigma0[i]
-                rate = self._sigma0[i] * abs(qdot[i]) / self._levels[i]
-                new[i] = z_slide + (z[i] - z_slide) * np.exp(-rate * self._h)
+        # Exact for qdot held over the step: z relaxes to its sliding value
+        # z_slide = F_c sgn(qdot) / sigma0 at the rate sigma0 |qdot| / F_c.
+        # Python floats (the IEEE operations numpy did per element, faster)
+        # except for the exponential: numpy's exp, on purpose (see
+        # LuGreFriction). A joint with no friction keeps z = 0, one at rest
+        # keeps its z.
+        qdot = self._state.Eval(context)[3:].tolist()
+        z = context.get_discrete_state_vector().value().tolist()
+        h = self._h
+        decay = np.exp([-(sigma0 * abs(v) / level) * h if level > 0 else 0.0
+                        for sigma0, level, v in zip(self._sigma0_list, self._level_list, qdot)])
+        new = []
+        for level, slide, v, z_i, e in zip(self._level_list, self._slide, qdot, z,
+                                           decay.tolist()):
+            if level <= 0:
+                new.append(0.0)
+            elif v == 0.0:
+                new.append(z_i)
+            else:
+                z_slide = slide[0] if v > 0 else slide[1]
+                new.append(z_slide + (z_i - z_slide) * e)
         discrete_state.set_value(new)
+
+
+def _held(e):
+    """``e``, evaluated to the same double, as an operand that Drake's
+    simplifier will not merge into an enclosing sum or product."""
+    return sym.max(e, -np.inf)
 
 
 def AddJointFriction(builder: DiagramBuilder, config: JointFrictionConfig, *,
                      mass_matrix_diagonal=None, time_step=None, name="joint_friction"):
-    """Adds the friction law; returns the added system (the LuGre
-    LeafSystem, or the regularized law's sub-diagram), named ``name``.
+    """Adds the friction law; returns the added system (the
+    :class:`LuGreFriction` or the regularized law's sub-diagram), named
+    ``name``.
 
     Ports: ``plant_state`` (input, [q; v], 6) and ``torque`` (output, the
     friction torque, 3, N m, to add to the plant's applied generalized
