@@ -178,3 +178,88 @@ def test_bad_parameters_name_the_field_and_range(field, value, words):
     with pytest.raises(ScenarioError, match=words.replace("(", r"\(").replace(")", r"\)")
                        .replace("[", r"\[").replace("]", r"\]")):
         make_wall(**{field: value})
+
+
+def test_no_python_runs_in_the_wall():
+    from drake_contact.diagram import leaf_systems
+    wall, _ = make_wall()
+    systems = list(leaf_systems(wall))
+    assert [s.get_name() for s in systems] == ["contact_law", "outputs"]
+    for system in systems:
+        assert type(system).__module__.startswith("pydrake"), system.get_name()
+
+
+def reference_wall_step(c, tip, state, t, h):
+    """The wall as the former Python LeafSystem computed it (numpy scalars,
+    K_e as the fifth state): returns (outputs [force_on_tip, contact_force,
+    penetration, true_impedance] as 8 values, next state)."""
+    x, _, _, vx, vy, _ = tip
+    s, sd, acc, v_prev, K = state
+    xe = x - c.surface_x
+    touching = xe > 0.0 and xe >= s
+    fn = 0.0
+    if touching:
+        elastic = K * xe + c.damping * vx
+        if c.law == "hunt_crossley":
+            elastic *= (xe / c.hunt_crossley_reference_penetration) ** (
+                c.hunt_crossley_exponent - 1.0)
+        fn = max(elastic + c.mass * acc, 0.0)
+    ft = 0.0
+    if fn > 0.0 and c.friction_coefficient > 0.0:
+        ft = -c.friction_coefficient * fn * np.clip(vy / c.stiction_velocity, -1.0, 1.0)
+    outputs = [-fn, ft, 0.0, fn, xe if touching else 0.0, c.mass, c.damping, K]
+    if fn > 0.0:
+        s, sd = x - c.surface_x, vx
+    if c.mass > 0.0:
+        det = 1.0 + h * c.damping / c.mass + h * h * K / c.mass
+        s, sd = ((1.0 + h * c.damping / c.mass) * s + h * sd) / det, (
+            sd - h * K / c.mass * s) / det
+    else:
+        s_next = s / (1.0 + h * K / c.damping) if c.damping > 0.0 else 0.0
+        s, sd = s_next, (s_next - s) / h
+    alpha = c.acceleration_smoothing
+    acc = alpha * acc + (1.0 - alpha) * (vx - v_prev) / h
+    K_next = c.stiffness * (1.0 + c.stiffness_drift_per_s * (t + h))
+    return np.array(outputs, dtype=float), np.array([s, sd, acc, vx, K_next])
+
+
+@pytest.mark.parametrize("fields", [
+    {},
+    {"law": "hunt_crossley"},
+    {"law": "hunt_crossley", "hunt_crossley_exponent": 2.0,
+     "hunt_crossley_reference_penetration": 2e-3},
+    {"friction_coefficient": 0.5},
+    {"friction_coefficient": 1.0, "stiction_velocity": 1.0},
+    {"stiffness_drift_per_s": -0.05, "stiffness": 4.4e4},
+    {"mass": 0.0},
+    {"mass": 0.0, "damping": 0.0},
+    {"mass": 1.0, "damping": 1.0, "acceleration_smoothing": 0.0},
+    {"law": "hunt_crossley", "friction_coefficient": 0.3, "stiffness_drift_per_s": 0.01,
+     "mass": 0.2, "damping": 40.0, "acceleration_smoothing": 0.7, "stiffness": 6.2e4},
+], ids=lambda fields: ",".join(fields) or "default")
+def test_bit_identical_to_the_former_python_law(fields):
+    """The C++ expressions do the Python law's IEEE operations in its order:
+    every output and state, bit for bit, over random tip states around the
+    surface (in and out of contact, fast retreats, free relaxation)."""
+    wall, context = make_wall(**fields)
+    config = wall.config
+    rng = np.random.default_rng(7)
+    ref_state = np.array([0.0, 0.0, 0.0, 0.0, config.stiffness])
+    x, v = SURFACE - 1e-3, 0.05
+    for n in range(600):
+        if n % 200 >= 100:  # jumps: every branch, every step
+            x, v = SURFACE + rng.normal(0, 2e-3), rng.normal(0, 0.05)
+        tip = np.array([x, rng.normal(0, 0.01), rng.normal(), v,
+                        rng.normal(0, 0.02) * rng.choice([0, 1, 100]), rng.normal()])
+        wall.GetInputPort("tip_state").FixValue(context, tip)
+        expected, ref_state = reference_wall_step(config, tip, ref_state, n * H, H)
+        actual = np.concatenate([wall.GetOutputPort(name).Eval(context)
+                                 for name in ("force_on_tip", "contact_force", "penetration",
+                                              "true_impedance")])
+        np.testing.assert_array_equal(actual, expected, err_msg=f"step {n}")
+        step_wall(wall, context, n)
+        state = context.get_discrete_state_vector().value()
+        np.testing.assert_array_equal(state[:4], ref_state[:4], err_msg=f"step {n}")
+        assert wall.stiffness_at(state[4]) == ref_state[4]
+        v += H * (20.0 * np.sin(n * 0.05) + actual[0] - 30.0 * v) / 6.8
+        x += H * v
