@@ -214,18 +214,19 @@ def contact_law_expressions(config: EnvironmentConfig, h: float):
 
     # In contact (f > 0) the surface is at the tip and relaxes from there;
     # otherwise it relaxes from its own state: one implicit-Euler step of
-    # M s'' + B s' + K s = 0.
+    # M s'' + B s' + K s = 0. (Each branch whole, so that evaluating the
+    # update evaluates the contact law once per state element.)
+    def free_step(s, sd):
+        if c.mass > 0.0:
+            a1 = 1.0 + h * c.damping / c.mass
+            det = a1 + _mul(h * h, K) / c.mass
+            return (a1 * s + h * sd) / det, (sd - _mul(h, K) / c.mass * s) / det
+        s_next = s / (1.0 + _mul(h, K) / c.damping) if c.damping > 0.0 else 0.0
+        return s_next, (s_next - s) / h
+
     contact = fn > 0.0
-    s0 = sym.if_then_else(contact, xe, s)
-    sd0 = sym.if_then_else(contact, vx, sd)
-    if c.mass > 0.0:
-        a1 = 1.0 + h * c.damping / c.mass
-        det = a1 + _mul(h * h, K) / c.mass
-        s_next = (a1 * s0 + h * sd0) / det
-        sd_next = (sd0 - _mul(h, K) / c.mass * s0) / det
-    else:
-        s_next = s0 / (1.0 + _mul(h, K) / c.damping) if c.damping > 0.0 else 0.0
-        sd_next = (s_next - s0) / h
+    pushed, free = free_step(xe, vx), free_step(s, sd)
+    s_next, sd_next = (sym.if_then_else(contact, a, b) for a, b in zip(pushed, free))
     alpha = c.acceleration_smoothing
     acc_next = alpha * acc + (1.0 - alpha) * (vx - v_prev) / h
     dynamics = [s_next, sd_next, acc_next, vx, t + h]
