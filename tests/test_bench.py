@@ -70,7 +70,6 @@ def test_a_long_scenario_is_capped_unless_a_duration_is_asked_for():
 def test_the_profile_lists_the_station_python_systems(profile):
     by_path = {s.path: s for s in profile.systems}
     for path, cls in [("station/force_sensor/force_sensor", "ForceSensor"),
-                      ("station/joint_friction/bristles", "LuGreBristles"),
                       ("station/controller/law", "HybridControlLaw"),
                       ("station/nn_compensator/law", "NnCompensationLaw")]:
         assert by_path[path].class_name == cls
@@ -78,10 +77,11 @@ def test_the_profile_lists_the_station_python_systems(profile):
     # The law's output and its sampled update: twice per 1 ms plant step
     # (the law itself is evaluated once, cached).
     assert by_path["station/controller/law"].calls_per_step == pytest.approx(2.0, abs=0.01)
-    # The tip kinematics and the wall run in C++ (SymbolicVectorSystems):
-    # the profile, which lists Python systems only, has no row for them.
-    assert not any(path.startswith(("station/tip_kinematics", "station/wall"))
-                   for path in by_path)
+    # The tip kinematics, the wall and the friction run in C++
+    # (SymbolicVectorSystems): the profile, which lists Python systems only,
+    # has no row for them.
+    assert not any(path.startswith(("station/tip_kinematics", "station/wall",
+                                    "station/joint_friction")) for path in by_path)
     times = [s.us_per_step for s in profile.systems]
     assert times == sorted(times, reverse=True)
     assert 0 < profile.systems_us <= profile.total_us

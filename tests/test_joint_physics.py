@@ -150,16 +150,18 @@ def reference_lugre_step(levels, sigma0, sigma1, z, qdot, h):
     ((0.0, 0.98, 0.0), (1.03, 0.117, 0.00287)),
     ((1.0, 1.0, 1.0), (1.0, 1.0, 1.0)),
 ])
-def test_lugre_is_bit_identical_to_the_former_numpy_law(levels, inertia):
-    """The torque (C++ expressions) and the bristle update (Python, numpy's
-    exp) do the former numpy law's IEEE operations, bit for bit."""
+def test_lugre_in_cpp_matches_the_former_numpy_law(levels, inertia):
+    """The torque and the bristle update (C++ expressions) do the former
+    numpy law's IEEE operations; only the exponential differs (std::exp vs
+    numpy's kernel, in the last bit), so the states agree to 1e-14 of their
+    scale."""
     from drake_contact.diagram import leaf_systems
     from drake_contact.plant.joint_physics import LuGreFriction
     config = JointFrictionConfig(levels=list(levels))
     friction = LuGreFriction(config, list(inertia), 1e-3)
     python = [s.get_name() for s in leaf_systems(friction)
               if not type(s).__module__.startswith("pydrake")]
-    assert python == ["bristles"]
+    assert python == []
     context = friction.CreateDefaultContext()
     levels = np.asarray(levels, dtype=float)
     sigma0 = np.asarray(inertia) * (2 * np.pi * config.bristle_frequency_hz) ** 2
@@ -170,10 +172,14 @@ def test_lugre_is_bit_identical_to_the_former_numpy_law(levels, inertia):
         qdot = rng.normal(0, 10.0 ** rng.uniform(-8, 0), 3) * (rng.random(3) < 0.8)
         friction.GetInputPort("plant_state").FixValue(
             context, np.concatenate([rng.normal(size=3), qdot]))
-        torque, z = reference_lugre_step(levels, sigma0, sigma1, z, qdot, 1e-3)
+        z = context.get_discrete_state_vector().value().copy()  # the system's own z
+        torque, z_next = reference_lugre_step(levels, sigma0, sigma1, z, qdot, 1e-3)
         np.testing.assert_array_equal(
             friction.GetOutputPort("torque").Eval(context), torque, err_msg=f"step {n}")
         context.SetDiscreteState(friction.EvalUniquePeriodicDiscreteUpdate(context)
                                  .get_vector().value().copy())
-        np.testing.assert_array_equal(context.get_discrete_state_vector().value(), z,
-                                      err_msg=f"step {n}")
+        # One last bit of exp's ~1 result is 1e-16 of the sliding deflection
+        # F_c / sigma0, the scale of z.
+        np.testing.assert_allclose(context.get_discrete_state_vector().value(), z_next,
+                                   rtol=0, atol=1e-14 * np.max(levels / sigma0),
+                                   err_msg=f"step {n}")

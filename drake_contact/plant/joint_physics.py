@@ -139,112 +139,52 @@ class LuGreFriction(Diagram):
     Input port: plant_state (6, [q; v]). Output port: torque (3, N m).
     State (discrete, 3): bristle deflections z (rad).
 
-    How it is computed: the friction torque, read by the plant every step,
-    is a ``SymbolicVectorSystem`` (``torque_law``) that Drake evaluates in
-    C++ from [q; v; z] (a ``Multiplexer``, ``torque_law_input``, appends z).
-    The bristles z and their update, one Python call per step, are the
-    LeafSystem :class:`LuGreBristles` (``bristles``): the exact update needs
-    numpy's exp, which on x86 with AVX-512 is numpy's own vector kernel and
-    differs from C++'s std::exp in the last bit on about 6 % of arguments
-    (which would change the simulated trajectories at the 1e-12 level).
-    The torque's expressions do the former Python law's IEEE operations in
-    its order (bit-identical).
+    How it is computed: one ``SymbolicVectorSystem`` (``law``) that Drake
+    evaluates in C++, with no Python per step: the torque, read by the plant
+    every step, from [q; v] and z, and the exact bristle update every plant
+    step. The torque's expressions do the former Python law's IEEE
+    operations in its order; the update's exponential is C++'s std::exp,
+    which differs from numpy's (an AVX-512 kernel on this machine) in the
+    last bit on about 6 % of arguments (``tests/test_joint_physics.py``
+    holds it to the numpy law within 1e-12).
     """
 
     def __init__(self, config: JointFrictionConfig, mass_matrix_diagonal, time_step):
         super().__init__()
-        builder = DiagramBuilder()
-        bristles = builder.AddNamedSystem(
-            "bristles", LuGreBristles(config, mass_matrix_diagonal, time_step))
-        joined = builder.AddNamedSystem("torque_law_input", Multiplexer([6, 3]))
-        state, z, torque = bristles.torque_expressions()
-        law = builder.AddNamedSystem("torque_law", SymbolicVectorSystem(
-            input=np.concatenate([state, z]), output=torque))
-        builder.Connect(bristles.GetOutputPort("bristle_deflection"), joined.get_input_port(1))
-        builder.Connect(joined.get_output_port(), law.get_input_port())
-        exported = builder.ExportInput(bristles.GetInputPort("plant_state"), "plant_state")
-        builder.ConnectInput(exported, joined.get_input_port(0))
-        builder.ExportOutput(law.get_output_port(), "torque")
-        builder.BuildInto(self)
-
-
-class LuGreBristles(LeafSystem):
-    """The LuGre bristle deflections z, stepped at the plant's step, and
-    the friction torque's law as symbolic expressions (evaluated by
-    :class:`LuGreFriction`'s ``torque_law``).
-
-    Input port: plant_state (6, [q; v]). Output port: bristle_deflection
-    (3, rad), the state (no Python when read). State (discrete, 3): z (rad).
-    """
-
-    def __init__(self, config: JointFrictionConfig, mass_matrix_diagonal, time_step):
-        super().__init__()
-        self._h = float(time_step)
-        self._levels = np.asarray(config.levels if config.enabled else [0.0] * 3, dtype=float)
+        h = float(time_step)
+        levels = np.asarray(config.levels if config.enabled else [0.0] * 3, dtype=float)
         w = 2 * np.pi * config.bristle_frequency_hz
         inertia = np.asarray(mass_matrix_diagonal, dtype=float)
-        self._sigma0 = inertia * w**2
-        self._sigma1 = 2 * config.bristle_damping_ratio * np.sqrt(self._sigma0 * inertia)
-        # For the update: z_slide for qdot > 0 and < 0 (as numpy computed
-        # F_c sgn(qdot) / sigma0), and the parameters as Python floats.
-        self._slide = [(float(level * 1.0 / sigma0), float(level * -1.0 / sigma0))
-                       for level, sigma0 in zip(self._levels, self._sigma0)]
-        self._level_list = self._levels.tolist()
-        self._sigma0_list = self._sigma0.tolist()
-        self._state = self.DeclareVectorInputPort("plant_state", 6)
-        z = self.DeclareDiscreteState(3)
-        self.DeclarePeriodicDiscreteUpdateEvent(self._h, 0.0, self._update)
-        self.DeclareStateOutputPort("bristle_deflection", z)
-
-    def torque_expressions(self):
-        """Returns (plant_state, z, torque): the input variables [q; v] (6)
-        and z (3), and the torque (3) as expressions of them,
-        tau = -(sigma0 z + sigma1 dz/dt), with dz/dt = qdot - sigma0 |qdot|
-        z / F_c (0 for a joint with no friction, whose z stays 0).
-
-        Each expression does the IEEE operations of the former numpy code
-        in its order; max(e, -inf), which is e exactly, keeps Drake's
-        simplifier from flattening a rounded intermediate into a reordered
-        sum or product."""
+        sigma0s = inertia * w**2
+        sigma1s = 2 * config.bristle_damping_ratio * np.sqrt(sigma0s * inertia)
         state = np.array([sym.Variable(f"{kind}{i + 1}") for kind in ("q", "qdot")
                           for i in range(3)])
         z = np.array([sym.Variable(f"z{i + 1}") for i in range(3)])
-        torque = []
+        torque, update = [], []
         for i in range(3):
-            level, sigma0, sigma1 = (float(a[i]) for a in (self._levels, self._sigma0,
-                                                           self._sigma1))
+            level, sigma0, sigma1 = float(levels[i]), float(sigma0s[i]), float(sigma1s[i])
             qdot = state[3 + i]
             if level > 0:
+                # tau = -(sigma0 z + sigma1 dz/dt), dz/dt = qdot - sigma0 |qdot| z / F_c.
                 decay = _held(sigma0 * sym.abs(qdot) / level)
                 rate = _held(qdot - decay * z[i])
                 torque.append(-(sigma0 * z[i] + sigma1 * rate))
+                # Exact for qdot held over the step: z relaxes to its sliding
+                # value F_c sgn(qdot) / sigma0 at the rate sigma0 |qdot| / F_c;
+                # a joint at rest keeps its z.
+                z_slide = sym.if_then_else(qdot > 0, level * 1.0 / sigma0, level * -1.0 / sigma0)
+                relax = sym.exp(_held(-(_held(sigma0 * sym.abs(qdot) / level)) * h))
+                update.append(sym.if_then_else(
+                    qdot == 0.0, z[i], _held(z_slide + _held(_held(z[i] - z_slide) * relax))))
             else:
                 torque.append(-(sigma0 * z[i] + sigma1 * 0.0))
-        return state, z, np.array(torque, dtype=object)
-
-    def _update(self, context, discrete_state):
-        # Exact for qdot held over the step: z relaxes to its sliding value
-        # z_slide = F_c sgn(qdot) / sigma0 at the rate sigma0 |qdot| / F_c.
-        # Python floats (the IEEE operations numpy did per element, faster)
-        # except for the exponential: numpy's exp, on purpose (see
-        # LuGreFriction). A joint with no friction keeps z = 0, one at rest
-        # keeps its z.
-        qdot = self._state.Eval(context)[3:].tolist()
-        z = context.get_discrete_state_vector().value().tolist()
-        h = self._h
-        decay = np.exp([-(sigma0 * abs(v) / level) * h if level > 0 else 0.0
-                        for sigma0, level, v in zip(self._sigma0_list, self._level_list, qdot)])
-        new = []
-        for level, slide, v, z_i, e in zip(self._level_list, self._slide, qdot, z,
-                                           decay.tolist()):
-            if level <= 0:
-                new.append(0.0)
-            elif v == 0.0:
-                new.append(z_i)
-            else:
-                z_slide = slide[0] if v > 0 else slide[1]
-                new.append(z_slide + (z_i - z_slide) * e)
-        discrete_state.set_value(new)
+                update.append(sym.Expression(0.0))
+        builder = DiagramBuilder()
+        law = builder.AddNamedSystem("law", SymbolicVectorSystem(
+            state=z, input=state, dynamics=update, output=torque, time_period=h))
+        builder.ExportInput(law.get_input_port(), "plant_state")
+        builder.ExportOutput(law.get_output_port(), "torque")
+        builder.BuildInto(self)
 
 
 def _held(e):
