@@ -195,3 +195,39 @@ def test_nn_diagram_builds_and_logs_the_compensator():
     builder = DiagramBuilder()
     diagram = builder.AddSystem(MakeContactDiagram(load_scenario("nn_styrofoam")))
     assert diagram.HasOutputPort("nn_output") and diagram.HasOutputPort("hybrid_torque")
+
+
+def _former_train(net, weights, inputs, error):
+    """The network's step as the plain array expressions it was first
+    written as (before issue 13's buffers): the reference, bit for bit."""
+    def sigma(s):
+        return 2.0 / (1.0 + np.exp(-s)) - 1.0
+    W, V = CompensatorNetwork.unpack(weights)
+    u1 = np.concatenate([[1.0], inputs + net.offsets])
+    h = u1 @ W
+    s_h = sigma(h)
+    o = np.concatenate([[1.0], s_h if net.text_output else h]) @ V
+    n = net.R * sigma(o)
+    delta = error * net.R * 0.5 * (1.0 - (n / net.R) ** 2)
+    back = (V[1:] @ delta) * 0.5 * (1.0 - s_h ** 2)
+    V_new = V + net.eta * np.outer(np.concatenate([[1.0], s_h]), delta)
+    W_new = W + net.eta * np.outer(u1, back)
+    return CompensatorNetwork.pack(W_new, V_new), n, (u1, h, s_h, o)
+
+
+@pytest.mark.parametrize("layer", ["text", "appendix_e"])
+def test_train_and_forward_are_bit_identical_to_the_array_expressions(layer):
+    rng = np.random.default_rng(13)
+    net = CompensatorNetwork(NnCompensatorConfig(output_layer=layer, learning_rate=1e-3))
+    for _ in range(300):
+        weights = rng.normal(0, rng.choice([0.01, 0.3, 3.0]), CompensatorNetwork.size)
+        inputs = INPUTS * rng.normal(1, rng.choice([0.1, 10.0]), 9)
+        error = rng.normal(0, 5, 3)
+        expected, n_expected, intermediates = _former_train(net, weights, inputs, error)
+        new, n = net.train(weights, inputs, error)
+        np.testing.assert_array_equal(new, expected)
+        np.testing.assert_array_equal(n, n_expected)
+        n, parts = net.forward(weights, inputs)
+        np.testing.assert_array_equal(n, n_expected)
+        for part, part_expected in zip(parts, intermediates):
+            np.testing.assert_array_equal(part, part_expected)

@@ -104,15 +104,48 @@ def _sigma(s):
 
 class CompensatorNetwork:
     """The network's arithmetic on a flat weight vector [W.ravel(), V.ravel()]
-    (no Drake), for the system and the tests."""
+    (no Drake), for the system and the tests.
+
+    One sample's arithmetic runs in work buffers the network owns (the
+    system calls it once per 1 ms sample on 9-12-3 arrays, where numpy's
+    per-call cost outweighs the arithmetic): the same IEEE operations, in
+    the same order, as the array expressions in the docstrings, with the
+    3-vectors in Python floats and every matrix product in numpy's BLAS."""
 
     size = (INPUTS + 1) * HIDDEN + (HIDDEN + 1) * OUTPUTS
+    _SPLIT = (INPUTS + 1) * HIDDEN
 
     def __init__(self, config: NnCompensatorConfig):
         self.eta = config.learning_rate
         self.R = np.asarray(config.output_half_ranges, dtype=float)
         self.offsets = np.asarray(config.input_offsets, dtype=float)
         self.text_output = config.output_layer == "text"
+        self._R = [float(r) for r in self.R]
+        # [1, u]; u's three parts (pose, previous pose, tau_h) and their offsets.
+        self._u1 = np.ones(INPUTS + 1)
+        self._u = self._u1[1:]
+        self._u_parts = [self._u1[1:4], self._u1[4:7], self._u1[7:10]]
+        self._offset_parts = [self.offsets[0:3], self.offsets[3:6], self.offsets[6:9]]
+        # [1, h] and [1, sigma(h)]; a scratch 12-vector; the back-propagated
+        # hidden errors; o's scratch; delta; n.
+        self._h1 = np.ones(HIDDEN + 1)
+        self._h = self._h1[1:]
+        self._s1 = np.ones(HIDDEN + 1)
+        self._s_h = self._s1[1:]
+        self._t = np.empty(HIDDEN)
+        self._back = np.empty(HIDDEN)
+        self._o = np.empty(OUTPUTS)
+        self._to = np.empty(OUTPUTS)
+        self._delta = np.empty(OUTPUTS)
+        self._n = np.empty(OUTPUTS)
+        # The step, flat like the weights (eta [1, u] back^T, eta [1, s] delta^T),
+        # and the new weights.
+        self._step = np.empty(self.size)
+        self._step_W = self._step[:self._SPLIT].reshape(INPUTS + 1, HIDDEN)
+        self._step_V = self._step[self._SPLIT:].reshape(HIDDEN + 1, OUTPUTS)
+        self._u1_column = self._u1[:, None]
+        self._s1_column = self._s1[:, None]
+        self._new = np.empty(self.size)
 
     @staticmethod
     def pack(W, V):
@@ -124,25 +157,70 @@ class CompensatorNetwork:
         return (weights[:split].reshape(INPUTS + 1, HIDDEN),
                 weights[split:].reshape(HIDDEN + 1, OUTPUTS))
 
+    def _set_inputs(self, pose, previous, tau_h):
+        """u = [pose, previous, tau_h] + offsets, into the [1, u] buffer."""
+        for part, value, offset in zip(self._u_parts, (pose, previous, tau_h),
+                                       self._offset_parts):
+            np.add(value, offset, out=part)
+
+    def _forward(self, weights):
+        """The forward pass on the buffered inputs: h, sigma(h), o and n into
+        the buffers; returns (V, n as three floats)."""
+        split = self._SPLIT
+        W = weights[:split].reshape(INPUTS + 1, HIDDEN)
+        V = weights[split:].reshape(HIDDEN + 1, OUTPUTS)
+        h, t, o, to = self._h, self._t, self._o, self._to
+        np.dot(self._u1, W, out=h)                     # h = W^T [1, u]
+        np.negative(h, out=t)                          # sigma(h) = 2 / (1 + e^-h) - 1
+        np.exp(t, out=t)
+        np.add(1.0, t, out=t)
+        np.divide(2.0, t, out=t)
+        np.subtract(t, 1.0, out=self._s_h)
+        np.dot(self._s1 if self.text_output else self._h1, V, out=o)
+        np.negative(o, out=to)
+        np.exp(to, out=to)
+        e0, e1, e2 = to.tolist()
+        R0, R1, R2 = self._R
+        return V, (R0 * (2.0 / (1.0 + e0) - 1.0), R1 * (2.0 / (1.0 + e1) - 1.0),
+                   R2 * (2.0 / (1.0 + e2) - 1.0))
+
+    def _train(self, weights, error):
+        """One step on the buffered inputs with error = (e0, e1, e2); the new
+        weights into the buffer ``_new``; returns n (three floats)."""
+        V, (n0, n1, n2) = self._forward(weights)
+        R0, R1, R2 = self._R
+        e0, e1, e2 = error
+        q0, q1, q2 = n0 / R0, n1 / R1, n2 / R2
+        delta = self._delta                            # e R sigma'(o)
+        delta[0] = e0 * R0 * 0.5 * (1.0 - q0 * q0)
+        delta[1] = e1 * R1 * 0.5 * (1.0 - q1 * q1)
+        delta[2] = e2 * R2 * 0.5 * (1.0 - q2 * q2)
+        back, t, s_h = self._back, self._t, self._s_h  # (V_1: delta) sigma'(h)
+        np.dot(V[1:], delta, out=back)
+        np.multiply(back, 0.5, out=back)
+        np.multiply(s_h, s_h, out=t)
+        np.subtract(1.0, t, out=t)
+        np.multiply(back, t, out=back)
+        step = self._step                              # eta [1, u] back^T, eta [1, s] delta^T
+        np.multiply(self._u1_column, back, out=self._step_W)
+        np.multiply(self._s1_column, delta, out=self._step_V)
+        np.multiply(step, self.eta, out=step)
+        np.add(weights, step, out=self._new)
+        return n0, n1, n2
+
     def forward(self, weights, inputs):
         """n (3) and the intermediates (u1 = [1, u], h, sigma(h), o)."""
-        W, V = self.unpack(weights)
-        u1 = np.concatenate([[1.0], inputs + self.offsets])
-        h = u1 @ W
-        s_h = _sigma(h)
-        o = np.concatenate([[1.0], s_h if self.text_output else h]) @ V
-        return self.R * _sigma(o), (u1, h, s_h, o)
+        np.add(inputs, self.offsets, out=self._u)
+        _, n = self._forward(weights)
+        return np.array(n), (self._u1.copy(), self._h.copy(), self._s_h.copy(),
+                             self._o.copy())
 
     def train(self, weights, inputs, error):
         """One step on 1/2 |error|^2, error = target - n at this sample's
         forward pass; returns (new weights, n before the step)."""
-        W, V = self.unpack(weights)
-        n, (u1, h, s_h, o) = self.forward(weights, inputs)
-        delta = error * self.R * 0.5 * (1.0 - (n / self.R) ** 2)  # R sigma'(o)
-        back = (V[1:] @ delta) * 0.5 * (1.0 - s_h ** 2)
-        V_new = V + self.eta * np.outer(np.concatenate([[1.0], s_h]), delta)
-        W_new = W + self.eta * np.outer(u1, back)
-        return self.pack(W_new, V_new), n
+        np.add(inputs, self.offsets, out=self._u)
+        n = self._train(weights, np.asarray(error, dtype=float).tolist())
+        return self._new.copy(), np.array(n)
 
 
 class NnCompensationLaw(LeafSystem):
@@ -163,6 +241,7 @@ class NnCompensationLaw(LeafSystem):
         self._net = CompensatorNetwork(config)
         self._learning = config.learning and config.learning_rate > 0
         self._targets = np.array([y_desired, phi_desired])
+        self._y_desired, self._phi_desired = (float(x) for x in self._targets)
         self._pose = self.DeclareVectorInputPort("tip_pose", 3)
         self._jacobian = self.DeclareVectorInputPort("tip_jacobian", 9)
         self._tau_h = self.DeclareVectorInputPort("hybrid_torque", 3)
@@ -173,6 +252,9 @@ class NnCompensationLaw(LeafSystem):
         self._weights = self.DeclareDiscreteState(CompensatorNetwork.pack(W, V))
         self._previous_pose = self.DeclareDiscreteState(3)
         self._held = self.DeclareDiscreteState(6)
+        # Plain ints index the groups (cheaper to pass to pydrake).
+        self._i_weights, self._i_previous, self._i_held = (
+            int(i) for i in (self._weights, self._previous_pose, self._held))
         self._size = 6 + len(CompensatorNetwork.pack(W, V))
         self._compensation = self.DeclareVectorOutputPort(
             "compensation", self._size, self._calc_compensation,
@@ -181,37 +263,41 @@ class NnCompensationLaw(LeafSystem):
         DeclareSampledUpdate(self, self._update)
 
     def _calc_compensation(self, context, output):
-        weights = context.get_discrete_state(self._weights).value()
+        weights = context.get_discrete_state(self._i_weights).value()
         value = output.get_mutable_value()
-        value[6:] = weights
         if not is_sample_time(context.get_time()):
-            value[:6] = context.get_discrete_state(self._held).value()
+            value[6:] = weights
+            value[:6] = context.get_discrete_state(self._i_held).value()
             return
         if self._mode.Eval(context)[0] < 0.5:
+            value[6:] = weights
             value[:6] = 0.0
             return
+        net = self._net
         pose = self._pose.Eval(context)
-        previous = context.get_discrete_state(self._previous_pose).value()
-        inputs = np.concatenate([pose, previous, self._tau_h.Eval(context)])
+        net._set_inputs(pose, context.get_discrete_state(self._i_previous).value(),
+                        self._tau_h.Eval(context))
         if self._learning:
-            error = np.concatenate([
-                [self._force_desired.Eval(context)[0] - self._force.Eval(context)[0]],
-                self._targets - pose[1:]])
-            new_weights, n = self._net.train(weights, inputs, error)
-            value[6:] = new_weights
+            _, y, phi = pose.tolist()
+            n = net._train(weights, (
+                self._force_desired.Eval(context)[0] - self._force.Eval(context)[0],
+                self._y_desired - y, self._phi_desired - phi))
+            value[6:] = net._new
         else:
-            n = self._net.forward(weights, inputs)[0]
+            value[6:] = weights
+            n = net._forward(weights)[1]
+        n_out = value[3:6]
+        n_out[0], n_out[1], n_out[2] = n
         J = self._jacobian.Eval(context).reshape(3, 3)
-        value[:3] = J.T @ n
-        value[3:6] = n
+        np.dot(J.T, n_out, out=value[:3])
 
     def _update(self, context, state):
         if not is_sample_time(context.get_time()):
             return  # t = 0: the first sample is at 1 ms
         compensation = self._compensation.Eval(context)
-        state.get_mutable_vector(self._weights).SetFromVector(compensation[6:])
-        state.get_mutable_vector(self._previous_pose).SetFromVector(self._pose.Eval(context))
-        state.get_mutable_vector(self._held).SetFromVector(compensation[:6])
+        state.get_mutable_value(self._i_weights)[:] = compensation[6:]
+        state.get_mutable_value(self._i_previous)[:] = self._pose.Eval(context)
+        state.get_mutable_value(self._i_held)[:] = compensation[:6]
 
 
 class NnCompensator(Diagram):
