@@ -72,3 +72,49 @@ def test_system_step_trains_on_the_force_less_the_switch_force(force_offset):
     before = _fixed_context(system, 12.0, x, t_contact=-1.0)
     untouched = CalcSampledUpdate(system, before)
     np.testing.assert_array_equal(untouched.get_vector(0).value(), w0)
+
+
+def _former_train(net, weights, x, f):
+    """The network's step and probes as the plain array expressions they
+    were first written as (before issue 13's buffers): the reference, bit
+    for bit."""
+    c = net.c
+
+    def forward(weights, x):
+        W, v = weights[:16].reshape(4, 4), weights[16:]
+        u = np.concatenate([[1.0], net.scale * x])
+        hidden = 2.0 / (1.0 + np.exp(-(W @ u))) - 1.0
+        return c.output_scale_n * (v[0] + v[1:] @ hidden), u, hidden
+
+    W, v = weights[:16].reshape(4, 4), weights[16:]
+    f_hat, u, hidden = forward(weights, x)
+    e = f - f_hat
+    S, eta = c.output_scale_n, c.learning_rate
+    grad_v = -e * S * np.concatenate([[1.0], hidden])
+    grad_W = np.outer(-e * S * v[1:] * 0.5 * (1.0 - hidden**2), u)
+    new = np.concatenate([(W - eta * grad_W).ravel(), v - eta * grad_v])
+    xs, vs, acc = c.probe
+    f_x = forward(new, np.array([xs, 0.0, 0.0]))[0]
+    f_xv = forward(new, np.array([xs, vs, 0.0]))[0]
+    f_xva = forward(new, np.array([xs, vs, acc]))[0]
+    probed = np.array([(f_xva - f_xv) / acc, (f_xv - f_x) / vs, f_x / xs])
+    return new, f_hat, probed, (u, hidden)
+
+
+def test_train_and_probes_are_bit_identical_to_the_array_expressions():
+    rng = np.random.default_rng(13)
+    net = ImpedanceNetwork(NnIdentifierConfig(learning_rate=1e-3, input_scale=[1e4, 100.0, 1.0],
+                                              probe=[2e-4, 1e-2, 0.5]))
+    for _ in range(300):
+        weights = rng.normal(0, rng.choice([0.3, 3.0]), ImpedanceNetwork.size)
+        x = rng.normal(0, [1e-3, 1e-2, 1.0])
+        f = rng.normal(10.0, 5.0)
+        expected, f_hat_expected, probed, (u, hidden) = _former_train(net, weights, x, f)
+        new, f_hat = net.train(weights, x, f)
+        np.testing.assert_array_equal(new, expected)
+        assert f_hat == f_hat_expected
+        np.testing.assert_array_equal(net.impedance(new), probed)
+        f_hat, u_new, hidden_new = net.forward(weights, x)
+        assert f_hat == f_hat_expected
+        np.testing.assert_array_equal(u_new, u)
+        np.testing.assert_array_equal(hidden_new, hidden)

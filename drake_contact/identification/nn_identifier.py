@@ -76,43 +76,112 @@ class ImpedanceNetwork:
     """The network's arithmetic on a flat weight vector (no Drake).
 
     Layout: W (HIDDEN x 4, inputs [1, u]) then v (1 + HIDDEN), row-major.
+
+    One sample's arithmetic runs in work buffers the network owns (the
+    system trains and probes it every 1 ms on 4-vectors, where numpy's
+    per-call cost outweighs the arithmetic): the same IEEE operations, in
+    the same order, as the array expressions in the docstrings, with the
+    scalars in Python floats and every matrix product in numpy's BLAS.
     """
 
     size = HIDDEN * 4 + HIDDEN + 1
+    _SPLIT = HIDDEN * 4
 
     def __init__(self, config: NnIdentifierConfig):
         self.c = config
         self.scale = np.asarray(config.input_scale, dtype=float)
+        self._scale = self.scale.tolist()
+        self._S = float(config.output_scale_n)
+        self._eta = float(config.learning_rate)
+        self._u1 = np.ones(4)                          # [1, scale * x]
+        self._h1 = np.ones(HIDDEN + 1)                 # [1, f(h)]
+        self._hidden = self._h1[1:]
+        self._pre = np.empty(HIDDEN)
+        self._a = np.empty(HIDDEN)
+        self._a_column = self._a[:, None]
+        self._step = np.empty(self.size)               # eta [grad_W.ravel(), grad_v]
+        self._step_W = self._step[:self._SPLIT].reshape(HIDDEN, 4)
+        self._step_v = self._step[self._SPLIT:]
+        # The probes' inputs [1, scale * x*] and their hidden layers.
+        xs, vs, acc = config.probe
+        self._probe_inputs = [np.concatenate([[1.0], self.scale * np.array(x)])
+                              for x in ([xs, 0.0, 0.0], [xs, vs, 0.0], [xs, vs, acc])]
+        self._probe_pre = np.empty((3, HIDDEN))
+        self._probe_rows = list(self._probe_pre)
+        self._probe_hidden = np.empty((3, HIDDEN))
+        self._probe_hidden_rows = list(self._probe_hidden)
 
     def unpack(self, weights):
         return weights[:HIDDEN * 4].reshape(HIDDEN, 4), weights[HIDDEN * 4:]
 
+    @staticmethod
+    def _f(pre, out):
+        """out = f(pre) = 2 / (1 + e^-pre) - 1 (pre is overwritten)."""
+        np.negative(pre, out=pre)
+        np.exp(pre, out=pre)
+        np.add(1.0, pre, out=pre)
+        np.divide(2.0, pre, out=pre)
+        np.subtract(pre, 1.0, out=out)
+
+    def _forward(self, weights, x0, x1, x2):
+        """f_hat for raw x = (x0, x1, x2); [1, scale x] and [1, f(h)] into
+        the buffers."""
+        u1 = self._u1
+        s0, s1, s2 = self._scale
+        u1[1] = s0 * x0
+        u1[2] = s1 * x1
+        u1[3] = s2 * x2
+        W = weights[:self._SPLIT].reshape(HIDDEN, 4)
+        np.dot(W, u1, out=self._pre)
+        self._f(self._pre, self._hidden)
+        return self._S * (weights[self._SPLIT] + np.dot(weights[self._SPLIT + 1:], self._hidden))
+
+    def _train(self, weights, x0, x1, x2, f, out):
+        """One gradient step (see :meth:`train`), the new weights into
+        ``out``; returns f_hat before the step."""
+        f_hat = self._forward(weights, x0, x1, x2)
+        c = -(f - f_hat) * self._S                     # -e S
+        a = self._a                                    # -e S v_1: f'(h)
+        for j, (v_j, h_j) in enumerate(zip(weights[self._SPLIT + 1:].tolist(),
+                                            self._hidden.tolist())):
+            a[j] = c * v_j * 0.5 * (1.0 - h_j * h_j)
+        np.multiply(self._a_column, self._u1, out=self._step_W)
+        np.multiply(self._h1, c, out=self._step_v)
+        np.multiply(self._step, self._eta, out=self._step)
+        np.subtract(weights, self._step, out=out)
+        return f_hat
+
+    def _impedance(self, weights):
+        """(M_e, B_e, K_e) as floats (see :meth:`impedance`)."""
+        W = weights[:self._SPLIT].reshape(HIDDEN, 4)
+        for u, row in zip(self._probe_inputs, self._probe_rows):
+            np.dot(W, u, out=row)
+        self._f(self._probe_pre, self._probe_hidden)
+        v0, v1, S = weights[self._SPLIT], weights[self._SPLIT + 1:], self._S
+        f_x, f_xv, f_xva = (S * (v0 + np.dot(v1, h)) for h in self._probe_hidden_rows)
+        xs, vs, acc = self.c.probe
+        return (f_xva - f_xv) / acc, (f_xv - f_x) / vs, f_x / xs
+
     def forward(self, weights, x):
         """f_hat (N) and the hidden activations for raw x = (xe, xe', xe'')."""
-        W, v = self.unpack(weights)
-        u = np.concatenate([[1.0], self.scale * x])
-        hidden = 2.0 / (1.0 + np.exp(-(W @ u))) - 1.0
-        return self.c.output_scale_n * (v[0] + v[1:] @ hidden), u, hidden
+        f_hat = self._forward(weights, *np.asarray(x, dtype=float).tolist())
+        return f_hat, self._u1.copy(), self._hidden.copy()
 
     def train(self, weights, x, f):
         """One gradient step on 1/2 (f - f_hat)^2; returns the new weights
-        and f_hat before the step."""
-        W, v = self.unpack(weights)
-        f_hat, u, hidden = self.forward(weights, x)
-        e = f - f_hat
-        S, eta = self.c.output_scale_n, self.c.learning_rate
-        grad_v = -e * S * np.concatenate([[1.0], hidden])
-        # d f(h)/dh = (1 - f(h)^2) / 2 for the bipolar sigmoid.
-        grad_W = np.outer(-e * S * v[1:] * 0.5 * (1.0 - hidden**2), u)
-        return np.concatenate([(W - eta * grad_W).ravel(), v - eta * grad_v]), f_hat
+        and f_hat before the step:
+
+            e = f - f_hat
+            v -= eta (-e S [1, f(h)])
+            W -= eta outer(-e S v_1: (1 - f(h)^2) / 2, [1, u])
+        """
+        new = np.empty(self.size)
+        f_hat = self._train(weights, *np.asarray(x, dtype=float).tolist(), f, new)
+        return new, f_hat
 
     def impedance(self, weights):
         """(M_e, B_e, K_e) by probing at (x*, v*, a*)."""
-        xs, vs, acc = self.c.probe
-        f_x = self.forward(weights, np.array([xs, 0.0, 0.0]))[0]
-        f_xv = self.forward(weights, np.array([xs, vs, 0.0]))[0]
-        f_xva = self.forward(weights, np.array([xs, vs, acc]))[0]
-        return np.array([(f_xva - f_xv) / acc, (f_xv - f_x) / vs, f_x / xs])
+        return np.array(self._impedance(weights))
 
     def initial_weights(self, seed):
         rng = np.random.default_rng(seed)
@@ -143,23 +212,28 @@ class NnIdentifier(LeafSystem):
         self._impedance = self.DeclareDiscreteState(self._net.impedance(weights))
         self._estimate = self.DeclareDiscreteState(1)
         self._switch = self.DeclareDiscreteState(2)
+        # Plain ints index the groups (cheaper to pass to pydrake).
+        self._i_weights, self._i_impedance, self._i_estimate, self._i_switch = (
+            int(i) for i in (self._weights, self._impedance, self._estimate, self._switch))
         DeclareSampledUpdate(self, self._update)
         self.DeclareStateOutputPort("impedance", self._impedance)
         self.DeclareStateOutputPort("force_estimate", self._estimate)
 
     def _update(self, context, state):
-        t_contact, x_switch = self._contact.Eval(context)[:2]
-        if t_contact < 0:
+        contact = self._contact.Eval(context)
+        if contact[0] < 0:
             return
-        x = np.array([self._pose.Eval(context)[0] - x_switch, self._velocity.Eval(context)[0],
-                      self._acceleration.Eval(context)[0]])
+        x0 = self._pose.Eval(context)[0] - contact[1]
+        x1 = self._velocity.Eval(context)[0]
+        x2 = self._acceleration.Eval(context)[0]
         force = self._force.Eval(context)[0]
-        started, f_s = context.get_discrete_state(self._switch).value()
+        started, f_s = context.get_discrete_state(self._i_switch).value().tolist()
         if not started:
             f_s = force if self._net.c.force_offset else 0.0
-            state.get_mutable_vector(self._switch).SetFromVector([1.0, f_s])
-        weights = context.get_discrete_state(self._weights).value()
-        weights, f_hat = self._net.train(weights, x, force - f_s)
-        state.get_mutable_vector(self._weights).SetFromVector(weights)
-        state.get_mutable_vector(self._impedance).SetFromVector(self._net.impedance(weights))
-        state.get_mutable_vector(self._estimate).SetAtIndex(0, f_hat + f_s)
+            state.get_mutable_value(self._i_switch)[:] = (1.0, f_s)
+        net = self._net
+        weights = state.get_mutable_value(self._i_weights)
+        f_hat = net._train(context.get_discrete_state(self._i_weights).value(),
+                           float(x0), float(x1), float(x2), float(force - f_s), weights)
+        state.get_mutable_value(self._i_impedance)[:] = net._impedance(weights)
+        state.get_mutable_value(self._i_estimate)[0] = f_hat + f_s
