@@ -160,3 +160,28 @@ def test_force_offset_form_recovers_the_impedance_under_a_constant_offset():
     # The thesis's form, fed the same data, over-estimates K_e.
     plain, plain_context = make_identifier(p0=DIFFUSE)
     assert run_identifier(plain, plain_context, f_offset=5.0)[2] / TRUE[2] - 1 > 0.1
+
+
+@pytest.mark.parametrize("force_offset,lam", [(False, 1.0), (True, 1.0), (False, 0.98),
+                                              (True, 0.995)])
+def test_system_step_is_bit_identical_to_the_recursion(force_offset, lam):
+    """The system's buffered step does RlsEstimator.step's arithmetic
+    operation for operation: theta and P equal it bit for bit, sample after
+    sample, on random signals and states."""
+    rng = np.random.default_rng(13)
+    system, context = make_identifier(force_offset=force_offset, forgetting_factor=lam)
+    n = 4 if force_offset else 3
+    group = context.get_mutable_discrete_state(THETA_P_GROUP)
+    A = rng.normal(0, 1, (n, n))
+    group.SetFromVector(np.concatenate([rng.normal(0, 100, n), (A @ A.T).ravel() * 1e3]))
+    for _ in range(50):
+        xe, xd, xdd, f = rng.normal(0, [1e-3, 1e-2, 1.0, 10.0])
+        values = context.get_discrete_state(THETA_P_GROUP).value().copy()
+        xe_read = (X_SWITCH + xe) - X_SWITCH  # what the system reads
+        theta, P = RlsEstimator.step(values[:n], values[n:].reshape(n, n),
+                                     np.array([xdd, xd, xe_read, 1.0][:n]), f, lam)
+        fix_inputs(system, context, t_contact=0.0, xe=xe, xd=xd, xdd=xdd, f=f)
+        step(system, context)
+        np.testing.assert_array_equal(context.get_discrete_state(THETA_P_GROUP).value(),
+                                      np.concatenate([theta, P.ravel()]))
+        np.testing.assert_array_equal(impedance(system, context), theta[:3])

@@ -103,20 +103,48 @@ class RlsIdentifier(LeafSystem):
         self._contact = self.DeclareVectorInputPort("contact_info", 4)
         self._impedance = self.DeclareDiscreteState(init.theta[:3])
         self._state = self.DeclareDiscreteState(np.concatenate([init.theta, init.P.ravel()]))
+        # Plain ints index the groups (cheaper to pass to pydrake).
+        self._i_impedance, self._i_state = int(self._impedance), int(self._state)
         DeclareSampledUpdate(self, self._update)
         self.DeclareStateOutputPort("impedance", self._impedance)
+        self._lam = config.forgetting_factor
+        # Work buffers of one sample's step (see _update).
+        n = self._n
+        self._values = np.empty(n + n * n)             # the state [theta, P.ravel()] read
+        self._theta = self._values[:n]
+        self._P = self._values[n:].reshape(n, n)
+        self._phi = np.ones(n)                         # [xe'', xe', xe(, 1)]
+        self._P_phi = np.empty(n)
+        self._gain = np.empty(n)
+        self._gain_column = self._gain[:, None]
+        self._theta_step = np.empty(n)
+        self._B = np.empty((n, n))
+        self._B_transposed = self._B.T
+        self._new = np.empty(n + n * n)                # the state written
+        self._new_theta = self._new[:n]
+        self._new_P = self._new[n:].reshape(n, n)
+        self._new_impedance = self._new[:3]
 
     def _update(self, context, state):
-        t_contact, x_switch = self._contact.Eval(context)[:2]
-        if t_contact < 0:
+        contact = self._contact.Eval(context)
+        if contact[0] < 0:
             return
-        n = self._n
-        values = context.get_discrete_state(self._state).value()
-        theta, P = values[:n], values[n:].reshape(n, n)
-        xe = self._pose.Eval(context)[0] - x_switch
-        phi = np.array([self._acceleration.Eval(context)[0], self._velocity.Eval(context)[0],
-                        xe, 1.0][:n])
-        theta, P = RlsEstimator.step(theta, P, phi, self._force.Eval(context)[0],
-                                     self._config.forgetting_factor)
-        state.get_mutable_vector(self._state).SetFromVector(np.concatenate([theta, P.ravel()]))
-        state.get_mutable_vector(self._impedance).SetFromVector(theta[:3])
+        # RlsEstimator.step's arithmetic, operation for operation, in the
+        # buffers: theta and P (a copy of the state), phi, the new state.
+        self._values[:] = context.get_discrete_state(self._i_state).value()
+        phi, P_phi, gain, B = self._phi, self._P_phi, self._gain, self._B
+        phi[0] = self._acceleration.Eval(context)[0]
+        phi[1] = self._velocity.Eval(context)[0]
+        phi[2] = self._pose.Eval(context)[0] - contact[1]
+        f, lam = self._force.Eval(context)[0], self._lam
+        np.dot(self._P, phi, out=P_phi)
+        np.divide(P_phi, lam + np.dot(phi, P_phi), out=gain)
+        np.multiply(gain, f - np.dot(phi, self._theta), out=self._theta_step)
+        np.add(self._theta, self._theta_step, out=self._new_theta)
+        np.multiply(self._gain_column, P_phi, out=B)
+        np.subtract(self._P, B, out=B)
+        np.divide(B, lam, out=B)
+        np.add(B, self._B_transposed, out=self._new_P)
+        np.multiply(self._new_P, 0.5, out=self._new_P)
+        state.get_mutable_value(self._i_state)[:] = self._new
+        state.get_mutable_value(self._i_impedance)[:] = self._new_impedance
