@@ -216,6 +216,7 @@ def _former_train(net, weights, inputs, error):
 
 
 @pytest.mark.parametrize("layer", ["text", "appendix_e"])
+@pytest.mark.filterwarnings("ignore:overflow encountered in exp")
 def test_train_and_forward_are_bit_identical_to_the_array_expressions(layer):
     rng = np.random.default_rng(13)
     net = CompensatorNetwork(NnCompensatorConfig(output_layer=layer, learning_rate=1e-3))

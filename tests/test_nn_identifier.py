@@ -101,6 +101,7 @@ def _former_train(net, weights, x, f):
     return new, f_hat, probed, (u, hidden)
 
 
+@pytest.mark.filterwarnings("ignore:overflow encountered in exp")
 def test_train_and_probes_are_bit_identical_to_the_array_expressions():
     rng = np.random.default_rng(13)
     net = ImpedanceNetwork(NnIdentifierConfig(learning_rate=1e-3, input_scale=[1e4, 100.0, 1.0],
