@@ -200,8 +200,9 @@ def simulate(diagram, loggers: SignalLoggers, *, progress=None, realtime_rate=0.
         status, message = "interrupted", f"interrupted at t = {context.get_time():.3f} s"
     except RuntimeError as e:
         status = "diverged"
-        message = (f"simulation failed at t = {context.get_time():.3f} s: "
-                   f"{str(e).splitlines()[0]}")
+        # Drake's own checks (e.g. a NaN reaching the plant's applied-force
+        # input) say where; the time is the simulator's.
+        message = f"diverged at t = {context.get_time():.3f} s: {str(e).splitlines()[0]}"
     wall_s = time.perf_counter() - start
     if meshcat is not None:
         finish_recording(visualizers, meshcat, record)

@@ -16,10 +16,12 @@ not a controller under study.
 import dataclasses as dc
 
 import numpy as np
-from pydrake.systems.framework import LeafSystem
+import pydrake.symbolic as sym
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import SymbolicVectorSystem
 
 from drake_contact.plant.arm import CONTROL_PERIOD
-from drake_contact.errors import ScenarioError, require_finite
+from drake_contact.errors import ScenarioError
 from drake_contact.plant.planar_arm import tip_jacobian, tip_pose
 from drake_contact.plant.tip_kinematics import check_closed_forms
 
@@ -56,31 +58,36 @@ class PushConfig:
                 raise ScenarioError(f"{prefix}.{field.name} = {value} is out of range: must be >= 0")
 
 
-class ConstantForcePushController(LeafSystem):
+class ConstantForcePushController(Diagram):
     """Input: plant_state (6, [q; v]). Output: joint_torque_commanded (3, N m),
-    updated every 1 ms (discrete state)."""
+    updated every 1 ms (discrete state, held between samples).
+
+    A Drake ``SymbolicVectorSystem`` (``law``): the closed-form kinematics of
+    the arm (plant/planar_arm.py) evaluated in C++, no Python per step;
+    ``plant`` is the arm's plant, against which they are checked here."""
 
     def __init__(self, plant, config: PushConfig):
         super().__init__()
         config.validate()
-        self._config = config
         check_closed_forms(plant)
-        self._state = self.DeclareVectorInputPort("plant_state", 6)
-        torque = self.DeclareDiscreteState(3)
-        self.DeclarePeriodicDiscreteUpdateEvent(CONTROL_PERIOD, 0.0, self._update)
-        self.DeclareStateOutputPort("joint_torque_commanded", torque)
-
-    def _update(self, context, discrete_state):
-        c = self._config
-        state = self._state.Eval(context)
-        require_finite(state, context, "controller")
-        q, v = state[:3].tolist(), state[3:].tolist()
-        _, y, phi = tip_pose(q)
-        J = tip_jacobian(q)
+        c = config
+        t = sym.Variable("t")
+        state = sym.MakeVectorVariable(6, "x")
+        torque = sym.MakeVectorVariable(3, "tau")
+        q, v = state[:3], state[3:]
+        _, y, phi = tip_pose(q, sin=sym.sin, cos=sym.cos)
+        J = tip_jacobian(q, sin=sym.sin, cos=sym.cos)
         xdot, ydot, phidot = (row[0] * v[0] + row[1] * v[1] + row[2] * v[2] for row in J)
-        force = c.force if context.get_time() >= c.start_time - 1e-9 else 0.0
+        force = sym.if_then_else(t >= c.start_time - 1e-9, c.force, 0.0)
         wrench = [force - c.damping_x * xdot,
                   c.stiffness_y * (c.y_desired - y) - c.damping_y * ydot,
                   c.stiffness_phi * (c.phi_desired - phi) - c.damping_phi * phidot]
-        discrete_state.set_value(
-            [J[0][j] * wrench[0] + J[1][j] * wrench[1] + J[2][j] * wrench[2] for j in range(3)])
+        update = [J[0][j] * wrench[0] + J[1][j] * wrench[1] + J[2][j] * wrench[2]
+                  for j in range(3)]
+        builder = DiagramBuilder()
+        law = builder.AddNamedSystem("law", SymbolicVectorSystem(
+            time=t, state=torque, input=state, dynamics=update, output=torque,
+            time_period=CONTROL_PERIOD))
+        builder.ExportInput(law.get_input_port(), "plant_state")
+        builder.ExportOutput(law.get_output_port(), "joint_torque_commanded")
+        builder.BuildInto(self)
