@@ -26,6 +26,7 @@ from drake_contact.app.runner import (
 from drake_contact.diagram import ContactStation, MakeContactDiagram, SeedNoise, Signal
 from drake_contact.errors import ScenarioError, SimulationDiverged
 from drake_contact.measured import MeasuredSignals
+from drake_contact.plant.arm import ApplySampledUpdates, CalcSampledUpdate
 from drake_contact.scenario import Scenario, dump_scenario, load_scenario
 
 __version__ = "0.1.0"
@@ -39,6 +40,8 @@ __all__ = [
     # Running
     "SeedNoise", "simulate", "simulate_scenario", "run", "RunResult", "SimulationDiverged",
     "compute_metrics",
+    # Testing one sampled system (controller, identifier) without a simulator
+    "ApplySampledUpdates", "CalcSampledUpdate",
     # Plotting (on your own axes; no backend is set)
     "plot_force_tracking", "plot_tip_errors", "plot_impedance", "plot_signal",
 ]

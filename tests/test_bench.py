@@ -170,8 +170,9 @@ def test_cli_prints_the_table_and_the_profile(tmp_path):
     assert result.stderr == ""
     out = result.stdout
     for text in ("plant floor (MultibodyPlant alone", "physics (plant, wall, friction",
-                 "scenario (full run", "scenario / physics = ", "station/controller",
-                 "ConstantForcePushController", "Drake simulator + C++ systems"):
+                 "scenario (full run", "scenario / physics = ",
+                 "station/force_sensor/force_sensor", "ForceSensor",
+                 "Drake simulator + C++ systems"):
         assert text in out
 
 
