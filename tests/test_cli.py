@@ -49,7 +49,20 @@ BAD_INPUTS = [
     (["--set", "controller.name=magic"], "controller.name = 'magic' is unknown"),
     (["--set", "nokey"], "--set 'nokey' is malformed"),
     (["--duration", "-1"], "simulation.duration = -1.0 is out of range"),
+    # Logs held in memory that could not fit: refused, with this machine's limit.
+    (["--set", "simulation.duration=1e12"], "simulation.duration = 1e+12 is out of range: its "
+     "1 kHz logs"),
 ]
+
+
+@pytest.mark.parametrize("command", [["run", "push_constant"], ["reproduce", "--quick"],
+                                     ["sweep", "stability_nn", "--quick"]])
+def test_an_output_folder_that_cannot_be_made_exits_2_with_one_line(tmp_path, command):
+    result = drake_contact(*command, "--out", "/proc/x/y", cwd=tmp_path)
+    assert result.returncode == 2
+    assert result.stderr.count("\n") == 1 and "--out = /proc/x/y: cannot write there" in \
+        result.stderr
+    assert "Traceback" not in result.stderr
 
 
 @pytest.mark.parametrize("extra,message", BAD_INPUTS)

@@ -16,6 +16,7 @@ reproduce exits with 1 when a thesis result fails its tolerance.
 
 import argparse
 import sys
+from pathlib import Path
 
 from drake_contact.errors import ScenarioError
 
@@ -182,9 +183,23 @@ def _cmd_sweep(args):
     return EXIT_INTERRUPTED if result.interrupted else 0
 
 
+def _check_out(path):
+    """Creates the output folder, or refuses it in one line (ScenarioError)."""
+    try:
+        Path(path).mkdir(parents=True, exist_ok=True)
+        probe = Path(path) / ".drake_contact_write_test"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as e:
+        raise ScenarioError(f"--out = {path}: cannot write there ({e.strerror or e}): "
+                            "give a folder you can create and write") from None
+
+
 def main(argv=None) -> int:
     args = _build_parser().parse_args(argv)
     try:
+        if getattr(args, "out", None) is not None:
+            _check_out(args.out)
         return {"run": _cmd_run, "list": _cmd_list, "bench": _cmd_bench,
                 "reproduce": _cmd_reproduce, "sweep": _cmd_sweep}[args.command](args)
     except ScenarioError as e:

@@ -21,6 +21,7 @@ these up to the last logged sample; ``metrics.json`` says why it stopped.
 
 import dataclasses as dc
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -34,7 +35,7 @@ from drake_contact.app.metrics import add_stiffness_ratio, baseline_scenario, co
 from drake_contact.app.visualization import (
     AddContactVisualization, check_record_path, finish_recording, new_meshcat, start_recording)
 from drake_contact.diagram import ContactStation, MakeContactDiagram, SeedNoise
-from drake_contact.errors import SimulationDiverged
+from drake_contact.errors import ScenarioError, SimulationDiverged
 from drake_contact.plant.arm import CONTROL_PERIOD
 from drake_contact.scenario import Scenario, dump_scenario
 
@@ -157,6 +158,25 @@ def MakeRunDiagram(scenario: Scenario, *, meshcat=None):
     return diagram, loggers
 
 
+#: The logs may take at most this share of the machine's memory.
+LOG_MEMORY_SHARE = 0.5
+
+
+def check_logs_fit(loggers: SignalLoggers, duration: float):
+    """Raises ScenarioError, naming simulation.duration and its limit on
+    this machine, when the run's 1 kHz logs would not fit in
+    LOG_MEMORY_SHARE of the physical memory (they are held in memory)."""
+    columns = loggers.sink.get_input_port().size() + 1
+    bytes_per_s = columns * 8 / CONTROL_PERIOD
+    memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    limit_s = LOG_MEMORY_SHARE * memory / bytes_per_s
+    if duration > limit_s:
+        raise ScenarioError(
+            f"simulation.duration = {duration:g} is out of range: its 1 kHz logs ({columns} "
+            f"columns) would need {duration * bytes_per_s / 1e9:.3g} GB; this machine allows "
+            f"at most {limit_s:.0f} s (half of its {memory / 2**30:.0f} GiB of memory)")
+
+
 def simulate(diagram, loggers: SignalLoggers, *, progress=None, realtime_rate=0.0,
              meshcat=None, record=None, live=True) -> RunResult:
     """Simulates ``diagram`` (holding ``loggers.station``) for the station's
@@ -172,6 +192,7 @@ def simulate(diagram, loggers: SignalLoggers, *, progress=None, realtime_rate=0.
     as a standalone HTML playback to this file.
     """
     scenario = loggers.station.scenario
+    check_logs_fit(loggers, scenario.simulation.duration)
     simulator = Simulator(diagram)
     simulator.set_target_realtime_rate(realtime_rate)
     context = simulator.get_mutable_context()
