@@ -119,6 +119,7 @@ def _cmd_run(args):
     from drake_contact.app.drawing import check_diagram_path, write_diagram
     from drake_contact.diagram import MakeContactDiagram
     scenario = load_scenario(args.scenario, args.set, duration=args.duration, seed=args.seed)
+    _check_out(args.out)
     if not args.realtime_rate >= 0:
         raise ScenarioError(f"--realtime-rate = {args.realtime_rate} is out of range: must be >= 0")
     meshcat = None
@@ -159,6 +160,7 @@ def _cmd_reproduce(args):
     from drake_contact.app.reproduce import reproduce
     if args.jobs is not None and args.jobs < 1:
         raise ScenarioError(f"--jobs = {args.jobs} is out of range: must be >= 1")
+    _check_out(args.out)
     rows, interrupted = reproduce(args.out, quick=args.quick, jobs=args.jobs,
                                   progress=lambda line: print(line, flush=True))
     failed = [r.experiment for r in rows if r.passed is not True]
@@ -175,6 +177,7 @@ def _cmd_sweep(args):
     if args.workers is not None and args.workers < 1:
         raise ScenarioError(f"--workers = {args.workers} is out of range: must be >= 1")
     sweep = load_sweep(args.sweep, quick=args.quick)
+    _check_out(args.out)
     result = run_sweep(sweep, args.out, workers=args.workers, scheduler=args.scheduler,
                        progress=terminal_progress())
     for line in summary_lines(sweep, result):
@@ -184,7 +187,8 @@ def _cmd_sweep(args):
 
 
 def _check_out(path):
-    """Creates the output folder, or refuses it in one line (ScenarioError)."""
+    """Creates the output folder (once the input is known to be valid), or
+    refuses it in one line (ScenarioError)."""
     try:
         Path(path).mkdir(parents=True, exist_ok=True)
         probe = Path(path) / ".drake_contact_write_test"
@@ -198,8 +202,6 @@ def _check_out(path):
 def main(argv=None) -> int:
     args = _build_parser().parse_args(argv)
     try:
-        if getattr(args, "out", None) is not None:
-            _check_out(args.out)
         return {"run": _cmd_run, "list": _cmd_list, "bench": _cmd_bench,
                 "reproduce": _cmd_reproduce, "sweep": _cmd_sweep}[args.command](args)
     except ScenarioError as e:
