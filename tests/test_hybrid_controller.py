@@ -72,6 +72,18 @@ def test_contact_sample_is_the_hybrid_pi_law():
     np.testing.assert_allclose(tau, expected, rtol=1e-9, atol=1e-9)
 
 
+def test_contact_damping_adds_minus_d_xdot_to_the_force_command():
+    config = HybridControllerConfig(force_gain=1.0, force_integral_gain=0.003,
+                                    contact_damping_x=150.0)
+    tau, mode, q, qdot, x, xd = sample(config, force=12.0)
+    J, jdq, M, h = expected_terms(q, qdot)
+    u_x = 400.0 * (np.array([config.approach.start_x, 0, 0]) - x) - 80.0 * xd
+    u_f = 1.0 * 8.0 + 0.003 * 8.0 - 150.0 * xd[0]
+    expected = (M @ np.linalg.solve(J, (np.eye(3) - S) @ u_x - jdq) + h + friction(config, qdot)
+                + J.T @ S @ np.array([20.0 + u_f, 0, 0]))
+    np.testing.assert_allclose(tau, expected, rtol=1e-9, atol=1e-9)
+
+
 def test_decoupled_law_uses_the_stiffness_input():
     config = HybridControllerConfig(law="decoupled", decoupled_force_gain=400.0,
                                     decoupled_force_damping=40.0)

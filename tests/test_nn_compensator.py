@@ -3,6 +3,7 @@ back-propagation step by hand, the gradient by finite differences, and the
 system's one sample (learning only in contact, J^T n, context copies)."""
 
 import dataclasses as dc
+import re
 
 import numpy as np
 
@@ -232,3 +233,61 @@ def test_train_and_forward_are_bit_identical_to_the_array_expressions(layer):
         np.testing.assert_array_equal(n, n_expected)
         for part, part_expected in zip(parts, intermediates):
             np.testing.assert_array_equal(part, part_expected)
+
+
+ERROR = np.array([5.0, -1e-3, 2e-3])
+
+
+def _thesis_step(config):
+    """(weights, thesis step g = w_new - w at this sample, eta, u1, s1)."""
+    net = CompensatorNetwork(dc.replace(config, leakage=0.0, e_modification=0.0,
+                                        dead_zone_n=0.0, normalized=False, weight_bound=0.0))
+    W, V = load_initial_weights(config.initial_weights)
+    w = CompensatorNetwork.pack(W, V) + 0.01 * np.sin(np.arange(CompensatorNetwork.size))
+    new, _ = net.train(w, INPUTS, ERROR)
+    u1, _, s, _ = net.forward(w, INPUTS)[1]
+    return w, new - w, config.learning_rate, u1, np.concatenate([[1.0], s])
+
+
+@pytest.mark.parametrize("field,value", [("leakage", 0.5), ("e_modification", 0.2)])
+def test_leakage_and_e_modification_pull_towards_the_initial_weights(field, value):
+    """sigma-mod: w + g - eta sigma (w - w0); e-mod: sigma = nu |e|."""
+    config = dc.replace(NnCompensatorConfig(learning_rate=5e-5), **{field: value})
+    w, g, eta, _, _ = _thesis_step(config)
+    w0 = CompensatorNetwork.pack(*load_initial_weights(config.initial_weights))
+    sigma = value if field == "leakage" else value * np.linalg.norm(ERROR)
+    new, _ = CompensatorNetwork(config).train(w, INPUTS, ERROR)
+    np.testing.assert_allclose(new, w + g - eta * sigma * (w - w0), rtol=1e-12, atol=1e-15)
+
+
+def test_dead_zone_holds_the_weights_inside_and_steps_outside():
+    w, g, _, _, _ = _thesis_step(NnCompensatorConfig())
+    inside = CompensatorNetwork(NnCompensatorConfig(dead_zone_n=5.0))
+    np.testing.assert_array_equal(inside.train(w, INPUTS, ERROR)[0], w)   # |e_f| = 5 N
+    outside = CompensatorNetwork(NnCompensatorConfig(dead_zone_n=4.9))
+    np.testing.assert_allclose(outside.train(w, INPUTS, ERROR)[0], w + g, rtol=1e-12)
+
+
+def test_normalized_gradient_divides_eta_by_one_plus_the_regressor_norms():
+    w, g, _, u1, s1 = _thesis_step(NnCompensatorConfig())
+    new, _ = CompensatorNetwork(NnCompensatorConfig(normalized=True)).train(w, INPUTS, ERROR)
+    np.testing.assert_allclose(new, w + g / (1.0 + u1 @ u1 + s1 @ s1), rtol=1e-10)
+
+
+def test_projection_keeps_the_weights_within_the_bound_of_the_initial_ones():
+    config = NnCompensatorConfig(learning_rate=0.5, weight_bound=0.05)
+    w0 = CompensatorNetwork.pack(*load_initial_weights(config.initial_weights))
+    w, g, _, _, _ = _thesis_step(config)   # |w + g - w0| far above 0.05 at this rate
+    new, _ = CompensatorNetwork(config).train(w, INPUTS, ERROR)
+    offset = w + g - w0
+    assert np.linalg.norm(offset) > 0.05
+    np.testing.assert_allclose(new, w0 + offset * 0.05 / np.linalg.norm(offset), rtol=1e-10)
+    assert np.linalg.norm(new - w0) == pytest.approx(0.05, rel=1e-12)
+
+
+@pytest.mark.parametrize("field,value,message", [
+    ("leakage", -1.0, "must be >= 0"), ("dead_zone_n", float("nan"), "must be >= 0"),
+    ("weight_bound", -0.1, "must be >= 0"), ("leakage", 3e4, "learning_rate * leakage")])
+def test_robust_options_are_validated(field, value, message):
+    with pytest.raises(ScenarioError, match=rf"controller\.nn\.{field} = .* {re.escape(message)}"):
+        dc.replace(NnCompensatorConfig(), **{field: value}).validate()

@@ -17,6 +17,9 @@ Contact, hybrid law (4.13-4.15), S = diag(1, 0, 0):
     tau = M J^-1 [(I - S) u_x - Jdot qdot] + h + F_c sgn(qdot) + J^T S f_d + J^T S u_f
     u_f = K_fp (f_d - f) + K_fi sum_k (f_d - f)        (integral as the per-sample sum)
 
+with the option ``contact_damping_x`` D_x adding -D_x xdot to u_f (active
+damping along x, which S otherwise leaves to the environment alone).
+
 Contact, decoupled law (4.19-4.21, Yoshikawa's form), with k_e from the
 ``stiffness_estimate`` input:
 
@@ -86,6 +89,11 @@ class HybridControllerConfig:
     # Force gains of the hybrid law: K_fp (dimensionless) and K_fi (per sample).
     force_gain: float = 1.0
     force_integral_gain: float = 0.003
+    # Active damping along x in contact, hybrid law (N s/m): adds -D_x xdot to
+    # the commanded force, S zeroing the position loop's damping there. Not in
+    # the thesis (0 = its law); velocity feedback in explicit force control
+    # (Volpe & Khosla 1993).
+    contact_damping_x: float = 0.0
     # Decoupled law: K_fd (1/s^2) and K_fv (1/s).
     decoupled_force_gain: float = 400.0
     decoupled_force_damping: float = 40.0
@@ -109,7 +117,7 @@ class HybridControllerConfig:
             raise ScenarioError(f"{prefix}.law = '{self.law}' is unknown: choose one of "
                                 f"{', '.join(CONTACT_LAWS)}")
         for field in ("position_gain", "velocity_gain", "force_gain", "force_integral_gain",
-                      "decoupled_force_gain", "decoupled_force_damping"):
+                      "contact_damping_x", "decoupled_force_gain", "decoupled_force_damping"):
             value = getattr(self, field)
             if not (np.isfinite(value) and value >= 0):
                 raise ScenarioError(f"{prefix}.{field} = {value} is out of range: must be >= 0")
@@ -219,6 +227,8 @@ class HybridControlLaw(LeafSystem):
             accel = [0.0, u_x[1], u_x[2]]  # (I - S) u_x
             if c.law == "hybrid":
                 force_x = f_d + c.force_gain * error + c.force_integral_gain * error_sum
+                if c.contact_damping_x:
+                    force_x -= c.contact_damping_x * xd[0]
             else:
                 k_e = self._stiffness.Eval(context)[0]
                 accel[0] = (c.decoupled_force_gain * error

@@ -64,6 +64,23 @@ class NnCompensatorConfig:
     # Added to the 9 inputs (m, m, rad, m, m, rad, N m x 3); the code's 0.01s.
     input_offsets: list[float] = dc.field(
         default_factory=lambda: [0.0, 0.01, 0.01, 0.0, 0.01, 0.01, 0.0, 0.0, 0.0])
+    # Robust modifications of the update (none in the thesis; all off by
+    # default, so the reproduction runs the thesis's update). w0 are the
+    # initial weights, g the thesis's step eta [1, u] back^T, eta [1, s] delta^T.
+    # sigma-modification (leakage; Ioannou & Kokotovic 1983, Ioannou & Sun
+    # 1996 sec. 8.5.2): w += g - eta sigma (w - w0). Dimensionless per sample.
+    leakage: float = 0.0
+    # e-modification (Narendra & Annaswamy 1987): w += g - eta nu |e| (w - w0),
+    # |e| the error vector's norm (N, m, rad as they are). Per N per sample.
+    e_modification: float = 0.0
+    # Dead zone (Peterson & Narendra 1982): no update while |f_d - f| <= this (N).
+    dead_zone_n: float = 0.0
+    # Normalized gradient (Ioannou & Sun 1996 sec. 4.3): eta / (1 + |[1, u]|^2 +
+    # |[1, sigma(h)]|^2) instead of eta.
+    normalized: bool = False
+    # Projection (Ioannou & Sun 1996 sec. 8.5.4): after each step, |w - w0| <=
+    # this bound (0 = unbounded).
+    weight_bound: float = 0.0
 
     def validate(self, prefix="controller.nn"):
         if not (0 <= self.learning_rate < 1):
@@ -79,6 +96,13 @@ class NnCompensatorConfig:
         if len(self.input_offsets) != INPUTS or not all(np.isfinite(self.input_offsets)):
             raise ScenarioError(f"{prefix}.input_offsets = {self.input_offsets} is out of range: "
                                 f"must be {INPUTS} finite values")
+        for field in ("leakage", "e_modification", "dead_zone_n", "weight_bound"):
+            value = getattr(self, field)
+            if not (np.isfinite(value) and value >= 0):
+                raise ScenarioError(f"{prefix}.{field} = {value} is out of range: must be >= 0")
+        if self.leakage * self.learning_rate >= 1:
+            raise ScenarioError(f"{prefix}.leakage = {self.leakage} is out of range: "
+                                "learning_rate * leakage must be < 1")
         load_initial_weights(self.initial_weights, f"{prefix}.initial_weights")
 
 
@@ -146,6 +170,15 @@ class CompensatorNetwork:
         self._u1_column = self._u1[:, None]
         self._s1_column = self._s1[:, None]
         self._new = np.empty(self.size)
+        # Robust modifications (see NnCompensatorConfig); w0 the initial weights.
+        self.leakage = float(config.leakage)
+        self.e_modification = float(config.e_modification)
+        self.dead_zone_n = float(config.dead_zone_n)
+        self.normalized = bool(config.normalized)
+        self.weight_bound = float(config.weight_bound)
+        self.robust = bool(self.leakage or self.e_modification or self.dead_zone_n
+                           or self.normalized or self.weight_bound)
+        self.w0 = self.pack(*load_initial_weights(config.initial_weights))
 
     @staticmethod
     def pack(W, V):
@@ -204,9 +237,30 @@ class CompensatorNetwork:
         step = self._step                              # eta [1, u] back^T, eta [1, s] delta^T
         np.multiply(self._u1_column, back, out=self._step_W)
         np.multiply(self._s1_column, delta, out=self._step_V)
+        if self.robust:
+            self._robust_step(weights, (e0, e1, e2))
+            return n0, n1, n2
         np.multiply(step, self.eta, out=step)
         np.add(weights, step, out=self._new)
         return n0, n1, n2
+
+    def _robust_step(self, weights, error):
+        """The new weights into ``_new`` from the unscaled gradient step in
+        ``_step``, with the configured modifications (NnCompensatorConfig)."""
+        if abs(error[0]) <= self.dead_zone_n:
+            self._new[:] = weights                     # dead zone: no update
+            return
+        eta = self.eta
+        if self.normalized:
+            eta = eta / (1.0 + float(self._u1 @ self._u1) + float(self._s1 @ self._s1))
+        drift = weights - self.w0
+        leak = self.leakage + self.e_modification * float(np.sqrt(sum(e * e for e in error)))
+        self._new[:] = weights + eta * self._step - eta * leak * drift
+        if self.weight_bound > 0:
+            offset = self._new - self.w0
+            norm = float(np.sqrt(offset @ offset))
+            if norm > self.weight_bound:
+                self._new[:] = self.w0 + offset * (self.weight_bound / norm)
 
     def forward(self, weights, inputs):
         """n (3) and the intermediates (u1 = [1, u], h, sigma(h), o)."""
