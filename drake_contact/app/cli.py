@@ -119,7 +119,6 @@ def _cmd_run(args):
     from drake_contact.app.drawing import check_diagram_path, write_diagram
     from drake_contact.diagram import MakeContactDiagram
     scenario = load_scenario(args.scenario, args.set, duration=args.duration, seed=args.seed)
-    _check_out(args.out)
     if not args.realtime_rate >= 0:
         raise ScenarioError(f"--realtime-rate = {args.realtime_rate} is out of range: must be >= 0")
     meshcat = None
@@ -127,6 +126,8 @@ def _cmd_run(args):
         check_record_path(args.record)  # before a Meshcat URL is printed
     if args.graphviz:
         check_diagram_path(args.graphviz)  # before building
+    _check_out(args.out)  # every input checked: now the folder may be made
+    if args.graphviz:
         write_diagram(MakeContactDiagram(scenario), args.graphviz)
     if args.meshcat:
         meshcat = new_meshcat()
