@@ -151,3 +151,68 @@ def test_force_reference_square_wave_and_sine():
     assert sine.at(3.0) == pytest.approx(10.0 + 4.0 * np.sin(np.pi * 3.0))
     # The sine's time restarts every square-wave cycle (the thesis's counter).
     assert sine.at(5.5) == pytest.approx(24.0)
+
+
+def test_decoupled_law_clips_the_stiffness_estimate_to_its_bounds():
+    config = HybridControllerConfig(law="decoupled", stiffness_bounds=[1000.0, 300000.0])
+    for k_e, used in ((-5.0e4, 1000.0), (2.0e6, 300000.0), (25000.0, 25000.0)):
+        tau = sample(config, force=12.0, k_e=k_e)[0]
+        np.testing.assert_allclose(tau, sample(config, force=12.0, k_e=used)[0],
+                                   rtol=1e-12, atol=1e-12)
+    assert not np.allclose(sample(config, force=12.0, k_e=2000.0)[0],
+                           sample(config, force=12.0, k_e=25000.0)[0])
+
+
+def test_decoupled_force_integral_adds_the_summed_error_to_the_force_command():
+    config = HybridControllerConfig(law="decoupled", decoupled_force_integral_gain=0.01)
+    tau, mode, q, qdot, x, xd = sample(config, force=12.0, k_e=25000.0, steps=3)
+    J, jdq, M, h = expected_terms(q, qdot)
+    u_x = 400.0 * (np.array([config.approach.start_x, 0, 0]) - x) - 80.0 * xd
+    accel = (np.eye(3) - S) @ u_x
+    accel[0] = (400.0 * 8.0 - 40.0 * 25000.0 * xd[0]) / 25000.0
+    expected = (M @ np.linalg.solve(J, accel - jdq) + h + friction(config, qdot)
+                + J.T @ S @ np.array([20.0 + 0.01 * 3 * 8.0, 0, 0]))
+    np.testing.assert_allclose(tau, expected, rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("law", ["hybrid", "decoupled"])
+def test_pose_integral_adds_the_summed_y_and_phi_errors_and_clamps_them(law):
+    gain, steps = 2000.0, 3
+    config = HybridControllerConfig(law=law, pose_integral_gain=gain, pose_integral_limit=20.0,
+                                    y_desired=0.0, phi_desired=0.0)
+    plain = dc.replace(config, pose_integral_gain=0.0)
+    tau, mode, q, qdot, x, xd = sample(config, force=12.0, steps=steps)
+    J, jdq, M, h = expected_terms(q, qdot)
+    # Switched on the first sample, so every one of the 3 samples summed.
+    extra = np.array([0.0, gain * 1e-3 * steps * -x[1], gain * 1e-3 * steps * -x[2]])
+    expected = sample(plain, force=12.0, steps=steps)[0] + M @ np.linalg.solve(J, extra)
+    np.testing.assert_allclose(tau, expected, rtol=1e-9, atol=1e-9)
+    # A large error saturates the integral: |K_pi T sum| <= pose_integral_limit.
+    tight = dc.replace(config, pose_integral_limit=5.0)
+    q_far = np.array(THESIS_Q0) + np.array([0.05, -0.2, 0.3])
+    tau, mode, q, qdot, x, xd = sample(tight, force=12.0, q=q_far, steps=50)
+    unclamped = gain * 1e-3 * 50 * -x[1:]
+    assert np.abs(unclamped).max() > 5.0  # one of them is clamped
+    J, jdq, M, h = expected_terms(q, qdot)
+    extra = np.concatenate([[0.0], np.clip(unclamped, -5.0, 5.0)])
+    expected = sample(plain, force=12.0, q=q_far, steps=50)[0] + M @ np.linalg.solve(J, extra)
+    np.testing.assert_allclose(tau, expected, rtol=1e-9, atol=1e-9)
+
+
+def test_force_reference_hold_before_the_cycle():
+    held = ForceReferenceConfig(levels=[20.0, 10.0], half_period_s=2.5, hold_s=10.0)
+    assert [held.at(t) for t in (-1.0, 0.0, 9.99, 10.0, 12.4, 12.5, 15.0)] == \
+        [20.0, 20.0, 20.0, 20.0, 20.0, 10.0, 20.0]
+    plain = dc.replace(held, hold_s=0.0)
+    assert all(held.at(t + 10.0) == plain.at(t) for t in np.arange(0.0, 20.0, 0.1))
+
+
+def test_force_integral_band_sums_only_small_errors():
+    config = HybridControllerConfig(force_gain=1.0, force_integral_gain=0.003)
+    summed = sample(config, force=12.0, steps=3)[0]          # error 8 N, summed 3 times
+    inside = sample(dc.replace(config, force_integral_band_n=8.0), force=12.0, steps=3)[0]
+    outside = sample(dc.replace(config, force_integral_band_n=7.9), force=12.0, steps=3)[0]
+    never = sample(dc.replace(config, force_integral_gain=0.0), force=12.0, steps=3)[0]
+    np.testing.assert_array_equal(inside, summed)
+    np.testing.assert_allclose(outside, never, rtol=1e-12, atol=1e-12)
+    assert not np.allclose(summed, never)

@@ -5,7 +5,9 @@ a square wave cycling through ``levels`` every ``half_period_s`` (the thesis:
 20 N, then 10 N after 2.5 s, back to 20 N at 5 s, ...), plus an optional
 sine A sin(2 pi f tau). As in the thesis's code, tau restarts with every
 square-wave cycle (its counter resets every 5 s). Before contact f_d is the
-first level.
+first level. The option ``hold_s`` (ours, for the ``adaptive_hybrid``
+scenario) holds the first level for that long after contact before the
+cycle starts (its clock then starts at 0).
 """
 
 import dataclasses as dc
@@ -28,6 +30,9 @@ class ForceReferenceConfig:
     # Added sine: amplitude (N) and frequency (Hz); the thesis: 4 sin(pi t).
     sine_amplitude_n: float = 0.0
     sine_frequency_hz: float = 0.5
+    # Hold the first level (no sine) for this long after contact before the
+    # cycle starts (s); 0 = the thesis's schedule.
+    hold_s: float = 0.0
 
     def validate(self, prefix="force_reference"):
         if not self.levels or not all(np.isfinite(x) and x >= 0 for x in self.levels):
@@ -39,12 +44,18 @@ class ForceReferenceConfig:
         if not (np.isfinite(self.sine_amplitude_n) and self.sine_frequency_hz >= 0):
             raise ScenarioError(f"{prefix}.sine_frequency_hz = {self.sine_frequency_hz} is out of "
                                 "range: must be >= 0 Hz")
+        if not (np.isfinite(self.hold_s) and self.hold_s >= 0):
+            raise ScenarioError(f"{prefix}.hold_s = {self.hold_s} is out of range: must be >= 0 s")
 
     def at(self, since_contact):
         """f_d (N) at ``since_contact`` seconds after the first contact
         (negative: before contact)."""
         if since_contact < 0:
             return self.levels[0]
+        if self.hold_s:
+            if since_contact < self.hold_s - 1e-9:
+                return self.levels[0]
+            since_contact -= self.hold_s
         cycle = self.half_period_s * len(self.levels)
         k = int(np.floor(since_contact / self.half_period_s + 1e-9)) % len(self.levels)
         tau = since_contact - cycle * np.floor(since_contact / cycle + 1e-9)

@@ -30,6 +30,31 @@ The thesis prints "S k_e u_f"; only k_e^-1 makes u_f, a force per time
 squared, an acceleration (Yoshikawa et al. 1988, the thesis's reference
 [25]). We add the force-rate damping K_fv k_e xd (k_e xd = df/dt), without
 which the decoupled force loop is undamped; K_fv = 0 gives (4.21) as printed.
+With an identifier's K_e (``stiffness_source``, the adaptive hybrid
+controller), k_e is its estimate clipped to ``stiffness_bounds``: from the
+first millisecond of contact, before the estimate has converged, the force
+loop's gain is K_e / k_e times its design value, so an estimate above the
+truth only slows the loop; the upper bound (with an identifier that starts
+there) is the safe prior. The arm's own mass is small (about 0.1-0.5 kg
+at the tip), so the acceleration-level force loop commands little torque
+against the joints' stiction (1 N m at joint 1, some 2 N at the tip): the
+force then sits a few N off f_d. The option ``decoupled_force_integral_gain``
+adds the hybrid law's integral of the force error to the force command,
+J^T S (f_d + K_fdi sum_k (f_d - f)); at low frequency the tip passes the
+commanded force to the wall whatever its stiffness, so this loop's gain
+(K_fdi per ms, a time constant T / K_fdi) does not depend on K_e.
+
+Option (ours, not the thesis's) for the position-controlled directions in
+contact: integral action on y and phi,
+
+    u_x[y, phi] += K_pi sum_k (target - pose) T        (T = 1 ms)
+
+restarting at each switch to contact, each sum clipped so that
+|K_pi sum| <= ``pose_integral_limit``. The tip sticks after the impact
+(joint stiction and, with wall friction, the surface): the PD alone
+leaves the offset the stiction holds; the integral builds the torque that
+breaks it (classical PID with clamping anti-windup, e.g. Astrom & Hagglund,
+"PID Controllers", 1995, section 3.5).
 
 Sampled at each whole millisecond, in the same event as the plant step its
 torque acts over (see arm.py, ``is_sample_time``). Reads measured signals only: the estimator's tip pose, velocity, joint
@@ -97,10 +122,25 @@ class HybridControllerConfig:
     # Decoupled law: K_fd (1/s^2) and K_fv (1/s).
     decoupled_force_gain: float = 400.0
     decoupled_force_damping: float = 40.0
+    # Integral of the force error in the decoupled law's force command, as
+    # K_fi in the hybrid law (per sample; 0 = 4.19 as printed): J^T S (f_d +
+    # K_fdi sum_k (f_d - f)). Ours: see the module doc.
+    decoupled_force_integral_gain: float = 0.0
+    # Conditional integration (N; 0 = always, the thesis): the force error
+    # is summed only while |f_d - f| <= this, so a step of f_d does not wind
+    # the integral up (Astrom & Hagglund 1995, section 3.5).
+    force_integral_band_n: float = 0.0
     # Stiffness (N/m) the decoupled law uses when no identifier feeds it.
     stiffness_estimate: float = 7000.0
     # Name of an identifier whose K_e feeds the decoupled law ('' = the constant).
     stiffness_source: str = ""
+    # [lowest, highest] k_e (N/m) the decoupled law uses; an identifier's
+    # estimate is clipped to them.
+    stiffness_bounds: list[float] = dc.field(default_factory=lambda: [1.0, 1.0e12])
+    # Integral gain K_pi on y and phi in contact (1/s^3; 0 = the thesis's PD)
+    # and the bound on the integral's acceleration (m/s^2 and rad/s^2).
+    pose_integral_gain: float = 0.0
+    pose_integral_limit: float = 20.0
     # Compensate dry friction with the model's F_c (4.10, 4.13, 4.19).
     friction_compensation: bool = True
     # Switch to contact above this filtered force (N), back below the other.
@@ -117,13 +157,19 @@ class HybridControllerConfig:
             raise ScenarioError(f"{prefix}.law = '{self.law}' is unknown: choose one of "
                                 f"{', '.join(CONTACT_LAWS)}")
         for field in ("position_gain", "velocity_gain", "force_gain", "force_integral_gain",
-                      "contact_damping_x", "decoupled_force_gain", "decoupled_force_damping"):
+                      "contact_damping_x", "decoupled_force_gain", "decoupled_force_damping",
+                      "decoupled_force_integral_gain", "force_integral_band_n",
+                      "pose_integral_gain", "pose_integral_limit"):
             value = getattr(self, field)
             if not (np.isfinite(value) and value >= 0):
                 raise ScenarioError(f"{prefix}.{field} = {value} is out of range: must be >= 0")
         if not (self.stiffness_estimate > 0):
             raise ScenarioError(f"{prefix}.stiffness_estimate = {self.stiffness_estimate} is out "
                                 "of range: must be > 0 N/m")
+        bounds = self.stiffness_bounds
+        if len(bounds) != 2 or not (0 < bounds[0] < bounds[1] < np.inf):
+            raise ScenarioError(f"{prefix}.stiffness_bounds = {bounds} is out of range: must be "
+                                "[lowest, highest] with 0 < lowest < highest (N/m)")
         if not (self.contact_threshold_n > self.contact_loss_threshold_n):
             raise ScenarioError(
                 f"{prefix}.contact_threshold_n = {self.contact_threshold_n} is out of range: "
@@ -133,10 +179,11 @@ class HybridControllerConfig:
 
 
 #: Layout of the law's output vector: the exported signals, then the
-#: internal state [approach timer (s), x_d (m), sum of force errors (N)].
+#: internal state [approach timer (s), x_d (m), sum of force errors (N),
+#: sums of the y and phi errors (m, rad)].
 _TAU, _MODE, _INFO, _JACOBIAN, _INTERNAL = (slice(0, 3), slice(3, 4), slice(4, 8),
-                                           slice(8, 17), slice(17, 20))
-_LAW_SIZE = 20
+                                           slice(8, 17), slice(17, 22))
+_LAW_SIZE = 22
 
 
 class HybridControlLaw(LeafSystem):
@@ -160,7 +207,7 @@ class HybridControlLaw(LeafSystem):
         self._stiffness = self.DeclareVectorInputPort("stiffness_estimate", 1)
         held = np.zeros(_LAW_SIZE)
         held[_INFO] = [-1.0, 0.0, 0.0, 0.0]
-        held[_INTERNAL] = [0.0, config.approach.start_x, 0.0]
+        held[_INTERNAL] = [0.0, config.approach.start_x, 0.0, 0.0, 0.0]
         self._held = self.DeclareDiscreteState(held)
         self._control = self.DeclareVectorOutputPort(
             "control", _LAW_SIZE, self._calc_control,
@@ -197,10 +244,10 @@ class HybridControlLaw(LeafSystem):
         f = self._force.Eval(context)[0]
         mode = held[3]
         info = held[_INFO].tolist()
-        timer, x_d, error_sum = held[_INTERNAL].tolist()
+        timer, x_d, error_sum, y_sum, phi_sum = held[_INTERNAL].tolist()
 
         if mode == APPROACH and f > c.contact_threshold_n:
-            mode, error_sum = CONTACT, 0.0
+            mode, error_sum, y_sum, phi_sum = CONTACT, 0.0, 0.0, 0.0
             if info[0] < 0:
                 info[0] = t
             info[1:] = x
@@ -223,23 +270,34 @@ class HybridControlLaw(LeafSystem):
         else:
             f_d = self._force_desired.Eval(context)[0]
             error = f_d - f
-            error_sum += error
+            if not c.force_integral_band_n or abs(error) <= c.force_integral_band_n:
+                error_sum += error
             accel = [0.0, u_x[1], u_x[2]]  # (I - S) u_x
+            if c.pose_integral_gain:
+                gain = c.pose_integral_gain * CONTROL_PERIOD
+                bound = c.pose_integral_limit / gain
+                y_sum = min(max(y_sum + (target[1] - x[1]), -bound), bound)
+                phi_sum = min(max(phi_sum + (target[2] - x[2]), -bound), bound)
+                accel[1] += gain * y_sum
+                accel[2] += gain * phi_sum
             if c.law == "hybrid":
                 force_x = f_d + c.force_gain * error + c.force_integral_gain * error_sum
                 if c.contact_damping_x:
                     force_x -= c.contact_damping_x * xd[0]
             else:
-                k_e = self._stiffness.Eval(context)[0]
+                low, high = c.stiffness_bounds
+                k_e = min(max(self._stiffness.Eval(context)[0], low), high)
                 accel[0] = (c.decoupled_force_gain * error
                             - c.decoupled_force_damping * k_e * xd[0]) / k_e
                 force_x = f_d
+                if c.decoupled_force_integral_gain:
+                    force_x += c.decoupled_force_integral_gain * error_sum
         qddot = solve3(J, [a - b for a, b in zip(accel, jdot_qdot)])
         tau = [tau[i] + M[i][0] * qddot[0] + M[i][1] * qddot[1] + M[i][2] * qddot[2]
                + J[0][i] * force_x for i in range(3)]
 
         output.SetFromVector(self._model.command(tau) + [mode] + info + J[0] + J[1] + J[2]
-                             + [timer, x_d, error_sum])
+                             + [timer, x_d, error_sum, y_sum, phi_sum])
 
 
 class HybridController(Diagram):
@@ -265,7 +323,7 @@ class HybridController(Diagram):
         super().__init__()
         builder = DiagramBuilder()
         law = builder.AddNamedSystem("law", HybridControlLaw(config))
-        split = builder.AddNamedSystem("outputs", Demultiplexer([3, 1, 4, 9, 3]))
+        split = builder.AddNamedSystem("outputs", Demultiplexer([3, 1, 4, 9, 5]))
         builder.Connect(law.get_output_port(), split.get_input_port())
         for port in range(law.num_input_ports()):
             builder.ExportInput(law.get_input_port(port), law.get_input_port(port).get_name())
