@@ -44,12 +44,28 @@ def test_a_path_or_a_name_both_work():
     ("environment.stiffness=soft", "environment.stiffness = 'soft' must be a number"),
     ("simulation.seed=1.5", "simulation.seed = 1.5 must be a whole number"),
     ("environment=3", "environment must be a mapping of keys"),
+    ("force_reference.hold_s=-2", "force_reference.hold_s = -2.0 is out of range: must be >= 0 s"),
+    ("scoring.level_settle_s=0", "scoring.level_settle_s = 0.0 is out of range: must be > 0 s"),
 ])
 def test_bad_overrides_name_the_field(override, message):
     with pytest.raises(ScenarioError) as info:
         load_scenario("push_constant", [override])
     assert message in str(info.value)
     assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("override,message", [
+    ("controller.hybrid.stiffness_bounds=[3e5, 1e3]",
+     "controller.hybrid.stiffness_bounds = [300000.0, 1000.0] is out of range"),
+    ("controller.hybrid.pose_integral_gain=-1",
+     "controller.hybrid.pose_integral_gain = -1.0 is out of range: must be >= 0"),
+    ("controller.hybrid.decoupled_force_integral_gain=-0.1",
+     "controller.hybrid.decoupled_force_integral_gain = -0.1 is out of range: must be >= 0"),
+])
+def test_bad_adaptive_hybrid_fields_name_the_field(override, message):
+    with pytest.raises(ScenarioError) as info:
+        load_scenario("adaptive_hybrid", [override])
+    assert message in str(info.value)
 
 
 def test_malformed_and_unknown_files(tmp_path):
