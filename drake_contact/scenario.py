@@ -91,6 +91,11 @@ class ScoringConfig:
     # adaptation_time_s: from the switch to the end of the first window of
     # rmse_window_s (sliding by 0.5 s) whose force RMSE is below this (N).
     adaptation_rmse_n: float = 1.5
+    # level_max_error_n: over each level of a stepwise f_d (no sine), from
+    # level_settle_s after the change to the next, the largest |mean true
+    # force over level_average_s - f_d| (s, s).
+    level_settle_s: float = 0.5
+    level_average_s: float = 0.1
 
     def validate(self, prefix="scoring"):
         if not (self.window_start_s >= 0):
@@ -105,6 +110,10 @@ class ScoringConfig:
         if not (self.adaptation_rmse_n > 0):
             raise ScenarioError(f"{prefix}.adaptation_rmse_n = {self.adaptation_rmse_n} is out "
                                 "of range: must be > 0 N")
+        for field in ("level_settle_s", "level_average_s"):
+            if not (getattr(self, field) > 0):
+                raise ScenarioError(f"{prefix}.{field} = {getattr(self, field)} is out of "
+                                    "range: must be > 0 s")
         if not (self.impact_window_s > 0):
             raise ScenarioError(f"{prefix}.impact_window_s = {self.impact_window_s} is out of "
                                 "range: must be > 0 s")

@@ -9,7 +9,7 @@ import pytest
 
 import drake_contact
 from drake_contact.app.metrics import (
-    STABLE_RMSE_N, compute_metrics, identification_metrics, stability_metrics)
+    STABLE_RMSE_N, compute_metrics, identification_metrics, level_metrics, stability_metrics)
 from drake_contact.identification.identifiers import IdentifierConfig
 from drake_contact.scenario import ScoringConfig
 
@@ -178,3 +178,28 @@ def test_a_10s_styrofoam_run_is_too_short_to_be_stable(styrofoam_run):
     for name in ("rls_matched", "rls"):
         assert m[f"identification_error_1s_{name}"] == \
             result.metrics[f"identification_error_1s_{name}"]
+
+
+# Levels of a stepwise reference.
+
+def test_level_error_is_the_worst_100ms_mean_from_settling_to_the_next_change():
+    # f_d: 20 N from the switch at 1 s, 10 N from 4 s, 20 N from 6 s to 8 s.
+    log = stepped_log(8.0, [(1.0, 1)])
+    t = log["t"]
+    desired = np.where((t >= 4.0 - 1e-9) & (t < 6.0 - 1e-9), 10.0, 20.0)
+    force = desired.copy()
+    force[(t >= 4.0 - 1e-9) & (t < 4.5 - 1e-9)] = 14.0       # settling: not scored
+    force[(t >= 5.0 - 1e-9) & (t < 5.05 - 1e-9)] = 10.0 + 3.0  # 50 ms at +3 N: 1.5 N in 100 ms
+    force[(t >= 7.9 - 1e-9)] = 20.0 - 0.4                     # the last 100 ms: -0.4 N
+    log.update(force_desired=desired, contact_force_true=force)
+    scoring = ScoringConfig()
+    out = level_metrics(log, 1.0, scoring)
+    assert out["level_count"] == 3
+    assert out["level_max_error_n"] == pytest.approx(1.5, abs=1e-9)
+    # A deviation before level_settle_s is not counted; a longer settling skips more.
+    force[(t >= 5.0 - 1e-9) & (t < 5.05 - 1e-9)] = 10.0
+    assert level_metrics(log, 1.0, scoring)["level_max_error_n"] == pytest.approx(0.4, abs=1e-9)
+    force[(t >= 1.5 - 1e-9) & (t < 1.6 - 1e-9)] = 21.0
+    assert level_metrics(log, 1.0, scoring)["level_max_error_n"] == pytest.approx(1.0, abs=1e-9)
+    late = ScoringConfig(level_settle_s=0.7)
+    assert level_metrics(log, 1.0, late)["level_max_error_n"] == pytest.approx(0.4, abs=1e-9)

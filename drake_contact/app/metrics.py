@@ -149,7 +149,34 @@ def tracking_metrics(log: dict, scenario: Scenario) -> dict:
                                                          - hybrid.phi_desired))),
         })
     out.update(adaptation_metrics(log, t_contact, s))
+    if scenario.force_reference.sine_amplitude_n == 0:
+        out.update(level_metrics(log, t_contact, s))
     return out
+
+
+def level_metrics(log: dict, t_contact: float, scoring) -> dict:
+    """For a stepwise f_d: ``level_max_error_n``, the largest deviation of
+    the true force, averaged over ``level_average_s``, from each level of
+    f_d, counted from ``level_settle_s`` after each change (the first level
+    from the switch) to the next change; ``level_count``, the levels
+    scored (a level shorter than the settling and one average is not)."""
+    t = log["t"]
+    force, desired = log["contact_force_true"], log["force_desired"]
+    i_contact = int(np.searchsorted(t, t_contact))
+    changes = [i_contact] + [int(i) + 1 for i in np.flatnonzero(np.diff(desired[i_contact:]))
+                             + i_contact] + [len(t)]
+    width = max(1, int(round(scoring.level_average_s / CONTROL_PERIOD)))
+    sums = np.concatenate([[0.0], np.cumsum(force)])
+    worst, count = None, 0
+    for start, stop in zip(changes[:-1], changes[1:]):
+        first = int(np.searchsorted(t, t[start] + scoring.level_settle_s - 1e-9))
+        if stop - first < width:
+            continue
+        means = (sums[first + width:stop + 1] - sums[first:stop + 1 - width]) / width
+        deviation = float(np.max(np.abs(means - desired[start])))
+        worst = deviation if worst is None else max(worst, deviation)
+        count += 1
+    return {"level_max_error_n": worst, "level_count": count}
 
 
 #: adaptation_time_s slides its window by this much (s).
