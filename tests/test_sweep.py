@@ -158,6 +158,8 @@ def test_points_are_named_by_their_values():
     ("scenario: push_constant\ngrid: {environment.stiffness: [1.0]}\nmaps: [{metric: a, x: b}]",
      "sweep.maps[0].x = 'b' is not a varied field"),
     ("scenario: push_constant\ngird: {}", "sweep.gird is not a sweep key"),
+    ("scenario: push_constant\ngrid: {environment.stiffness: [1.0]}\nbaseline: 1",
+     "sweep.baseline = 1 must be true or false"),
 ])
 def test_bad_sweeps_exit_2_with_one_line_naming_the_field(tmp_path, text, words):
     (tmp_path / "bad.yaml").write_text(text)
@@ -169,7 +171,9 @@ def test_bad_sweeps_exit_2_with_one_line_naming_the_field(tmp_path, text, words)
     assert "Traceback" not in result.stderr and not (tmp_path / "o").exists()
 
 
-@pytest.mark.parametrize("name", ["stability_nn", "stability_hybrid", "identification_accuracy"])
+@pytest.mark.parametrize("name", ["stability_nn", "stability_hybrid", "identification_accuracy",
+                                  "robust_nn", "adaptive_hybrid", "hybrid_pi_map",
+                                  "fig6_15_wall_friction"])
 def test_bundled_sweeps_load_in_full_and_quick(name):
     full, quick = load_sweep(name), load_sweep(name, quick=True)
     assert len(quick.tasks()) <= 4 < len(full.tasks())

@@ -16,6 +16,8 @@ SWEEP is a YAML file, or the name of a bundled sweep (``models/sweeps/``)::
       controller.hybrid.force_gain: [1.0, 0.25]
       controller.hybrid.force_integral_gain: [0.02, 0.005]
     seeds: [0, 1, 2]                  # every point runs once per seed
+    baseline: false                   # neural controller: also run its hybrid part alone
+                                      # (metrics baseline_force_rmse_n, ...)
     maps:                             # figures: a heat map (x and y), a line plot (x only)
       - {metric: force_rmse_n, x: environment.stiffness, y: controller.nn.learning_rate,
          facet: environment.damping}
@@ -97,6 +99,8 @@ class Sweep:
     paired: dict
     seeds: list
     maps: list
+    # Run the neural controller's hybrid-only baseline at every point too.
+    baseline: bool = False
 
     @property
     def fields(self) -> list[str]:
@@ -151,7 +155,7 @@ def load_sweep(source, *, quick=False) -> Sweep:
     except yaml.YAMLError as e:
         raise ScenarioError(f"{path}: malformed YAML: {str(e).splitlines()[0]}") from None
     known = {"description", "scenario", "set", "duration", "grid", "paired", "seeds", "maps",
-             "quick"}
+             "baseline", "quick"}
     _check_keys(data, known, "sweep")
     if quick and "quick" in data:
         _check_keys(data["quick"], known - {"quick", "description", "scenario", "maps"},
@@ -178,9 +182,13 @@ def load_sweep(source, *, quick=False) -> Sweep:
             and all(isinstance(s, int) and s >= 0 for s in seeds)):
         raise ScenarioError(f"sweep.seeds = {seeds!r} is out of range: must be a list of "
                             "whole numbers >= 0")
+    baseline = data.get("baseline", False)
+    if not isinstance(baseline, bool):
+        raise ScenarioError(f"sweep.baseline = {baseline!r} must be true or false")
     sweep = Sweep(description=str(data.get("description", "")), scenario=str(data["scenario"]),
                   overrides=overrides, grid=grid, paired=paired, seeds=seeds,
-                  maps=[_map(m, i, grid | paired) for i, m in enumerate(data.get("maps") or [])])
+                  maps=[_map(m, i, grid | paired) for i, m in enumerate(data.get("maps") or [])],
+                  baseline=baseline)
     check_points(sweep)
     return sweep
 
@@ -239,7 +247,7 @@ def _warm_up():
     import drake_contact.app.runner  # noqa: F401 - pydrake and the systems, once per worker
 
 
-def run_point(scenario, overrides, seed, out_dir) -> dict:
+def run_point(scenario, overrides, seed, out_dir, baseline=False) -> dict:
     """Runs one point (on a worker) into ``out_dir``; returns its timing.
 
     Exceptions other than bad input are the run's failure: written to
@@ -248,7 +256,7 @@ def run_point(scenario, overrides, seed, out_dir) -> dict:
     started = time.time()
     out = Path(out_dir)
     try:
-        run(load_scenario(scenario, overrides, seed=seed), out, figures=False, baseline=False)
+        run(load_scenario(scenario, overrides, seed=seed), out, figures=False, baseline=baseline)
         failure = None
     except Exception as e:  # noqa: BLE001 - any failure of a point is its row
         failure = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"
@@ -374,7 +382,8 @@ def run_sweep(sweep: Sweep, out_dir, *, workers=None, scheduler=None, progress=N
         start = time.perf_counter()
         try:
             futures = {client.submit(run_point, sweep.scenario, sweep.overrides + t.overrides(),
-                                     t.seed, str(runs / t.name), key=f"point-{t.name}",
+                                     t.seed, str(runs / t.name), sweep.baseline,
+                                     key=f"point-{t.name}",
                                      pure=False): t for t in todo}
             failed = 0
             for done, future in enumerate(as_completed(futures), start=1):
