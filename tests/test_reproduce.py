@@ -206,3 +206,27 @@ def test_report_embeds_every_figure_and_draws_the_diagram(tmp_path, monkeypatch,
         assert not (tmp_path / "diagram.svg").exists()
         assert "apt-get install graphviz" in markdown and "apt-get install graphviz" in page
         assert page.index("<pre>digraph") < page.index("<table>")
+
+
+def _small_lr_row(tmp_path, windows, losses=0, first_loss=None):
+    run_dir = tmp_path / "nn_small_lr"
+    run_dir.mkdir(exist_ok=True)
+    adaptation = next((5.0 * k + 5.0 for k, w in enumerate(windows) if w < 1.5), None)
+    (run_dir / "metrics.json").write_text(json.dumps({
+        "status": "completed", "force_rmse_windows_n": windows, "adaptation_time_s": adaptation,
+        "contact_losses": losses, "first_contact_loss_s": first_loss}))
+    return {r.experiment: r for r in score(tmp_path)}["small learning rate 1e-5"]
+
+
+def test_fig_6_14_needs_the_late_windows_and_no_contact_loss(tmp_path):
+    lag = [2.7] + [2.3] * 11
+    # Adapts (the window ending at 65 s) and keeps following to the end.
+    assert _small_lr_row(tmp_path, lag + [1.4] * 30).passed is True
+    # Adapts, then a late window misses.
+    row = _small_lr_row(tmp_path, lag + [1.4] * 5 + [1.6] + [1.4] * 5)
+    assert row.passed is False and "up to 1.60 N" in row.measured
+    # Adapts, then loses contact (our nn_small_lr): fails, and says so.
+    row = _small_lr_row(tmp_path, lag + [1.4] * 30, losses=32, first_loss=82.6)
+    assert row.passed is False and "contact lost 32 times, first 82.600 s" in row.measured
+    # Never adapts.
+    assert _small_lr_row(tmp_path, lag + [2.0] * 30).passed is False

@@ -24,6 +24,7 @@ writes the report, with the rows it could not score marked "not run".
 import dataclasses as dc
 import html
 import json
+import math
 import os
 import re
 import subprocess
@@ -314,12 +315,30 @@ def _nn_sine(runs):
 
 @_result("small learning rate 1e-5", "6.13-6.14", "lags at first, follows after a few minutes")
 def _small_lr(runs):
+    """Lags first, adapts after 30-200 s, and then keeps following: every
+    5 s window from the adaptation to the end of the run under 1.5 N, and
+    no contact lost after contact (Fig 6.14 shows it following "after a few
+    minutes", so a run that adapts and then loses contact does not
+    reproduce it)."""
     m = runs["nn_small_lr"]
-    first = m["force_rmse_windows_n"][0]
+    windows = m["force_rmse_windows_n"]
+    first = windows[0]
     adapt = m.get("adaptation_time_s")
-    ok = first > 2.0 and adapt is not None and 30.0 <= adapt <= 200.0
-    return Score(f"first 5 s RMSE {first:.2f} N; adapted {_time(adapt)} after contact",
-                 "f_d", "first window > 2 N; adaptation in 30-200 s", ok,
+    width = 5.0
+    late = [] if adapt is None else windows[math.ceil(adapt / width - 1e-9):]
+    losses = m.get("contact_losses", 0)
+    ok = (first > 2.0 and adapt is not None and 30.0 <= adapt <= 200.0 and bool(late)
+          and max(late) < 1.5 and losses == 0)
+    measured = f"first 5 s RMSE {first:.2f} N; adapted {_time(adapt)} after contact"
+    if late:
+        measured += (f"; after it, 5 s RMSE up to {max(late):.2f} N over {len(late)} windows to "
+                     "the end")
+    if losses:
+        measured += (f"; contact lost {losses} times, first {_time(m.get('first_contact_loss_s'))}"
+                     " after contact (the thesis's update lets the weights drift without "
+                     "bound: see the README, Fig 6.14)")
+    return Score(measured, "f_d", "first window > 2 N; adaptation in 30-200 s; then every 5 s "
+                 "window < 1.5 N to the end and no contact lost", ok,
                  runs.images("nn_small_lr", "fig6_13_force_tracking.png"))
 
 
