@@ -43,3 +43,14 @@ def test_draining_in_chunks_and_growing_past_the_reserve_gives_the_same_log():
     for key in whole:
         np.testing.assert_array_equal(chunked[key], whole[key], err_msg=key)
 
+
+
+def test_a_window_baseline_stops_after_the_scoring_window_and_scores_it(tmp_path):
+    from drake_contact.app.runner import run
+    scenario = dc.load_scenario("nn_styrofoam", ["scoring.window_start_s=0.5",
+                                                 "scoring.window_end_s=1.5"], duration=12.0)
+    full = run(scenario, tmp_path / "full", figures=False, baseline=True).metrics
+    short = run(scenario, tmp_path / "short", figures=False, baseline="window").metrics
+    t_base = np.load(tmp_path / "short" / "baseline" / "log.npz")["t"]
+    assert abs(t_base[-1] - (short["contact_time_s"] + 1.5 + 1.0)) < 2e-3
+    assert short["baseline_force_rmse_n"] == full["baseline_force_rmse_n"]

@@ -295,6 +295,11 @@ def run(scenario: Scenario, out_dir, *, progress=None, figures=True,
     ``baseline`` (default: with figures, for the neural controller) also runs
     :func:`baseline_scenario` into ``out_dir/baseline``, adds its force RMSE
     to the metrics as ``baseline_*`` and draws both runs on the same axes.
+    ``baseline="window"`` runs it only to 1 s past the end of the scoring
+    window (the contact time is the run's: the compensator acts only in
+    contact, so both runs are the same until then), enough for
+    ``baseline_force_rmse_n``; sweeps use it (its per-window RMSE then stops
+    there too).
     ``meshcat``, ``record`` (an HTML playback file) and ``realtime_rate``
     are passed to :func:`simulate_scenario` (the baseline is not drawn).
     """
@@ -319,7 +324,12 @@ def run(scenario: Scenario, out_dir, *, progress=None, figures=True,
         baseline = figures and scenario.controller.name == "nn"
     baseline_log = None
     if baseline and result.status == "completed":
-        base = run(baseline_scenario(scenario), out / "baseline", figures=False, baseline=False)
+        base_scenario = baseline_scenario(scenario)
+        window_end = scenario.scoring.window_end_s
+        if baseline == "window" and window_end > 0 and metrics.get("contact_time_s") is not None:
+            base_scenario.simulation.duration = min(
+                scenario.simulation.duration, metrics["contact_time_s"] + window_end + 1.0)
+        base = run(base_scenario, out / "baseline", figures=False, baseline=False)
         baseline_log = base.log
         for key in ("force_rmse_n", "force_rmse_windows_n", "force_mean_abs_error_n",
                     "adaptation_time_s"):

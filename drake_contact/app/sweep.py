@@ -16,8 +16,8 @@ SWEEP is a YAML file, or the name of a bundled sweep (``models/sweeps/``)::
       controller.hybrid.force_gain: [1.0, 0.25]
       controller.hybrid.force_integral_gain: [0.02, 0.005]
     seeds: [0, 1, 2]                  # every point runs once per seed
-    baseline: false                   # neural controller: also run its hybrid part alone
-                                      # (metrics baseline_force_rmse_n, ...)
+    baseline: false                   # neural controller: also run its hybrid part alone,
+                                      # to the scoring window's end (baseline_force_rmse_n)
     maps:                             # figures: a heat map (x and y), a line plot (x only)
       - {metric: force_rmse_n, x: environment.stiffness, y: controller.nn.learning_rate,
          facet: environment.damping}
@@ -256,7 +256,8 @@ def run_point(scenario, overrides, seed, out_dir, baseline=False) -> dict:
     started = time.time()
     out = Path(out_dir)
     try:
-        run(load_scenario(scenario, overrides, seed=seed), out, figures=False, baseline=baseline)
+        run(load_scenario(scenario, overrides, seed=seed), out, figures=False,
+            baseline="window" if baseline else False)
         failure = None
     except Exception as e:  # noqa: BLE001 - any failure of a point is its row
         failure = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"
