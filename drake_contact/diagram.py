@@ -19,13 +19,10 @@ import zlib
 
 import numpy as np
 from pydrake.common import RandomGenerator
-from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.framework import Diagram, DiagramBuilder, PortDataType
 from pydrake.systems.primitives import Adder, ConstantVectorSource, MatrixGain, RandomSource
 
 from drake_contact.control.force_reference import ForceReference
-from drake_contact.control.hybrid_controller import HybridController
-from drake_contact.control.nn_compensator import NnCompensator
-from drake_contact.control.push_controller import ConstantForcePushController
 from drake_contact.errors import ScenarioError
 from drake_contact.identification.identifiers import AddIdentifiers
 from drake_contact.measured import MeasuredSignals
@@ -34,6 +31,7 @@ from drake_contact.plant.compliant_wall import CompliantWall
 from drake_contact.plant.joint_physics import (
     AddEncoders, AddJointFriction, AddTorqueSaturation, check_friction_stability)
 from drake_contact.plant.tip_kinematics import TipKinematics
+from drake_contact.plugins import ContactDetector, MakeController
 from drake_contact.scenario import Scenario
 from drake_contact.sensing.dsp import AddDspForceInput
 from drake_contact.sensing.estimator import AddKinematicEstimator
@@ -83,69 +81,45 @@ class ContactStation(Diagram):
         self.signals = signals
 
 
-def _add_push_controller(builder, scenario, plant, measured: MeasuredSignals):
-    controller = builder.AddNamedSystem(
-        "controller", ConstantForcePushController(plant, scenario.controller.push))
-    builder.Connect(plant.get_state_output_port(), controller.GetInputPort("plant_state"))
-    return {"joint_torque_commanded": controller.GetOutputPort("joint_torque_commanded")}
+def _add_controller(builder, scenario, plant, measured: MeasuredSignals):
+    """Adds the scenario's controller (:func:`drake_contact.plugins.MakeController`)
+    as ``controller``, the force reference if it reads ``force_desired``,
+    and the station's contact detector if it has no ``contact_info`` but
+    something needs one; connects every input by name. Returns (controller,
+    {signal name: output port} of what the station exports from it)."""
+    config = scenario.controller
+    system = MakeController(config.name, config.factory_options())
+    controller = builder.AddNamedSystem("controller", system)
+    sources = dict(measured.items()) | {"plant_state": plant.get_state_output_port()}
+    ports = {}
+    contact = None
+    if controller.HasOutputPort("contact_info"):
+        contact = controller.GetOutputPort("contact_info")
+    elif controller.HasInputPort("force_desired") or scenario.identifiers:
+        detector = builder.AddNamedSystem("contact_detector", ContactDetector())
+        builder.Connect(measured.force, detector.GetInputPort("force"))
+        builder.Connect(measured.tip_pose, detector.GetInputPort("tip_pose"))
+        contact = detector.GetOutputPort("contact_info")
+        ports["mode"] = detector.GetOutputPort("mode")
+    if controller.HasInputPort("force_desired"):
+        reference = builder.AddNamedSystem(
+            "force_reference", ForceReference(scenario.force_reference))
+        builder.Connect(contact, reference.GetInputPort("contact_info"))
+        sources["force_desired"] = reference.GetOutputPort("force_desired")
+        ports["force_desired"] = sources["force_desired"]
+    for i in range(controller.num_input_ports()):
+        name = controller.get_input_port(i).get_name()
+        if name in sources:
+            builder.Connect(sources[name], controller.get_input_port(i))
+    # impedance_estimate is connected once the identifiers exist.
+    for i in range(controller.num_output_ports()):
+        port = controller.get_output_port(i)
+        if port.get_data_type() == PortDataType.kVectorValued:
+            ports[port.get_name()] = port
+    if contact is not None:
+        ports["contact_info"] = contact
+    return controller, ports
 
-
-def _add_hybrid_controller(builder, scenario, plant, measured: MeasuredSignals):
-    config = scenario.controller.hybrid
-    controller = builder.AddNamedSystem("controller", HybridController(config))
-    reference = builder.AddNamedSystem("force_reference", ForceReference(scenario.force_reference))
-    for name in ("tip_pose", "tip_velocity", "joint_positions", "joint_velocities", "force"):
-        builder.Connect(getattr(measured, name), controller.GetInputPort(name))
-    builder.Connect(reference.GetOutputPort("force_desired"),
-                    controller.GetInputPort("force_desired"))
-    builder.Connect(controller.GetOutputPort("contact_info"),
-                    reference.GetInputPort("contact_info"))
-    # The decoupled law's k_e: the scenario's constant, or an identifier's
-    # K_e (connected once the identifiers exist).
-    if not config.stiffness_source:
-        stiffness = builder.AddNamedSystem(
-            "stiffness_estimate", ConstantVectorSource([config.stiffness_estimate]))
-        builder.Connect(stiffness.get_output_port(), controller.GetInputPort("stiffness_estimate"))
-    return {
-        "stiffness_estimate_input": controller.GetInputPort("stiffness_estimate"),
-        "joint_torque_commanded": controller.GetOutputPort("joint_torque_commanded"),
-        "mode": controller.GetOutputPort("mode"),
-        "contact_info": controller.GetOutputPort("contact_info"),
-        "tip_jacobian": controller.GetOutputPort("tip_jacobian"),
-        "force_desired": reference.GetOutputPort("force_desired"),
-    }
-
-
-def _add_nn_controller(builder, scenario, plant, measured: MeasuredSignals):
-    """The hybrid part plus the 9-12-3 compensator: tau = tau_h + J^T n."""
-    ports = _add_hybrid_controller(builder, scenario, plant, measured)
-    hybrid = scenario.controller.hybrid
-    compensator = builder.AddNamedSystem(
-        "nn_compensator",
-        NnCompensator(scenario.controller.nn, hybrid.y_desired, hybrid.phi_desired))
-    builder.Connect(measured.tip_pose, compensator.GetInputPort("tip_pose"))
-    builder.Connect(ports["tip_jacobian"], compensator.GetInputPort("tip_jacobian"))
-    builder.Connect(measured.force, compensator.GetInputPort("force"))
-    builder.Connect(ports["force_desired"], compensator.GetInputPort("force_desired"))
-    builder.Connect(ports["mode"], compensator.GetInputPort("mode"))
-    builder.Connect(ports["joint_torque_commanded"], compensator.GetInputPort("hybrid_torque"))
-    total = builder.AddNamedSystem("nn_torque_sum", Adder(2, 3))
-    builder.Connect(ports["joint_torque_commanded"], total.get_input_port(0))
-    builder.Connect(compensator.GetOutputPort("joint_torque"), total.get_input_port(1))
-    ports["hybrid_torque"] = ports["joint_torque_commanded"]
-    ports["joint_torque_commanded"] = total.get_output_port()
-    ports["nn_output"] = compensator.GetOutputPort("nn_output")
-    return ports
-
-
-#: controller.name -> adder(builder, scenario, plant, measured) returning a
-#: dict of its output ports: at least joint_torque_commanded, and any of
-#: :data:`CONTROLLER_SIGNALS`, which the station then exports and logs.
-CONTROLLER_ADDERS = {
-    "push": _add_push_controller,
-    "hybrid": _add_hybrid_controller,
-    "nn": _add_nn_controller,
-}
 
 #: Controller outputs the station exports when a controller has them.
 CONTROLLER_SIGNALS = {
@@ -209,9 +183,6 @@ def MakeContactDiagram(scenario: Scenario) -> ContactStation:
     unstable at the plant step). Its noise is seeded by :func:`SeedNoise`.
     """
     scenario.validate()
-    if scenario.controller.name not in CONTROLLER_ADDERS:
-        raise ScenarioError(f"controller.name = '{scenario.controller.name}' is unknown: "
-                            f"choose one of {', '.join(CONTROLLER_ADDERS)}")
     builder = DiagramBuilder()
     plant, scene_graph, tip, wall, friction = _add_arm_and_wall(builder, scenario)
     state_port = plant.get_state_output_port()
@@ -236,7 +207,7 @@ def MakeContactDiagram(scenario: Scenario) -> ContactStation:
         **{name: estimator.GetOutputPort(name) for name in (
             "tip_pose", "tip_velocity", "tip_acceleration", "joint_positions",
             "joint_velocities", "tip_velocity_raw", "tip_acceleration_raw")})
-    controller = CONTROLLER_ADDERS[scenario.controller.name](builder, scenario, plant, measured)
+    controller_system, controller = _add_controller(builder, scenario, plant, measured)
     torque = controller["joint_torque_commanded"]
     identifiers = None
     if scenario.identifiers:
@@ -245,13 +216,14 @@ def MakeContactDiagram(scenario: Scenario) -> ContactStation:
             if identifiers.HasInputPort(name):
                 builder.Connect(port, identifiers.GetInputPort(name))
         builder.Connect(controller["contact_info"], identifiers.GetInputPort("contact_info"))
-        source = scenario.controller.hybrid.stiffness_source
-        if source:
-            pick = builder.AddNamedSystem("stiffness_from_identifier",
-                                          MatrixGain(np.array([[0.0, 0.0, 1.0]])))
-            builder.Connect(identifiers.GetOutputPort(f"impedance_{source}"),
-                            pick.get_input_port())
-            builder.Connect(pick.get_output_port(), controller["stiffness_estimate_input"])
+    if controller_system.HasInputPort("impedance_estimate"):
+        source = scenario.controller.impedance_source_name()
+        if not source:
+            raise ScenarioError(
+                f"controller '{scenario.controller.name}' reads impedance_estimate: name its "
+                "identifier in controller.impedance_source")
+        builder.Connect(identifiers.GetOutputPort(f"impedance_{source}"),
+                        controller_system.GetInputPort("impedance_estimate"))
     saturation = AddTorqueSaturation(builder, scenario.torque_limits)
     motors = builder.AddNamedSystem(
         "motors", MatrixGain(np.diag(scenario.arm.motor_torque_scale)))
@@ -295,6 +267,11 @@ def MakeContactDiagram(scenario: Scenario) -> ContactStation:
     for name, meaning in CONTROLLER_SIGNALS.items():
         if name in controller:
             export(name, controller[name], meaning)
+    for name, port in controller.items():
+        if name not in CONTROLLER_SIGNALS and name not in ("joint_torque_commanded",
+                                                           "tip_jacobian"):
+            export(f"controller_{name}", port,
+                   f"controller '{scenario.controller.name}' output {name}")
     if identifiers is not None:
         for config in scenario.identifiers:
             export(f"impedance_{config.name}",

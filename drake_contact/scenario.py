@@ -29,6 +29,7 @@ from drake_contact.control.nn_compensator import NnCompensatorConfig
 from drake_contact.plant.joint_physics import (
     THESIS_TORQUE_LIMITS, EncoderConfig, JointFrictionConfig)
 from drake_contact.control.push_controller import PushConfig
+from drake_contact.plugins import installed_controllers
 from drake_contact.resources import bundled_scenario_names, scenarios_dir
 
 class _Loader(yaml.SafeLoader):
@@ -49,15 +50,17 @@ def _yaml_load(text):
     return yaml.load(text, Loader=_Loader)
 
 
-#: Controllers a scenario can name in ``controller.name``.
-CONTROLLER_NAMES = ("push", "hybrid", "nn")
+#: Built-in controllers configured by their own typed section of
+#: ``controller`` (every other installed controller takes ``controller.options``).
+TYPED_CONTROLLERS = ("push", "hybrid", "nn")
 
 
 @dc.dataclass
 class ControllerConfig:
     """Which controller commands the joints, and its parameters."""
 
-    # One of CONTROLLER_NAMES.
+    # An installed controller (drake_contact.plugins.installed_controllers():
+    # the built-ins push, hybrid, nn, the baselines, and any plug-in).
     name: str = "push"
     # Constant-force pushing law (name: push), a test harness.
     push: PushConfig = dc.field(default_factory=PushConfig)
@@ -66,14 +69,60 @@ class ControllerConfig:
     # The neural-network compensator added to ``hybrid`` (name: nn, section 4.5).
     nn: NnCompensatorConfig = dc.field(default_factory=NnCompensatorConfig)
 
+    # Options of a plug-in controller (names to numbers, lists or strings),
+    # handed to its factory. The typed built-ins take their section above.
+    options: dict[str, float] = dc.field(default_factory=dict)
+    # Name of an identifier whose [M_e, B_e, K_e] feeds the controller's
+    # ``impedance_estimate`` input ('' = none; the thesis's decoupled law names
+    # its own in hybrid.stiffness_source).
+    impedance_source: str = ""
+
     def validate(self, prefix="controller"):
-        if self.name not in CONTROLLER_NAMES:
+        installed = installed_controllers()
+        if self.name not in installed:
             raise ScenarioError(
                 f"{prefix}.name = '{self.name}' is unknown: choose one of "
-                f"{', '.join(CONTROLLER_NAMES)}")
+                f"{', '.join(sorted(installed))}")
+        if self.name in TYPED_CONTROLLERS:
+            if self.options:
+                raise ScenarioError(
+                    f"{prefix}.options: the built-in '{self.name}' is configured by "
+                    f"{prefix}.{'hybrid and ' + prefix + '.nn' if self.name == 'nn' else self.name}, "
+                    "not by options")
+            if self.name == "nn":
+                self.hybrid.validate(f"{prefix}.hybrid")
+            getattr(self, self.name).validate(f"{prefix}.{self.name}")
+        _check_options(self.options, f"{prefix}.options")
+
+    def factory_options(self) -> dict:
+        """The options mapping the controller's factory gets: the typed
+        section of a typed built-in, ``options`` otherwise."""
         if self.name == "nn":
-            self.hybrid.validate(f"{prefix}.hybrid")
-        getattr(self, self.name).validate(f"{prefix}.{self.name}")
+            return {"hybrid": dc.asdict(self.hybrid), "nn": dc.asdict(self.nn)}
+        if self.name in TYPED_CONTROLLERS:
+            return dc.asdict(getattr(self, self.name))
+        return dict(self.options)
+
+    def impedance_source_name(self) -> str:
+        """The identifier feeding ``impedance_estimate`` ('' = none)."""
+        if self.name in ("hybrid", "nn"):
+            return self.hybrid.stiffness_source
+        return self.impedance_source
+
+
+def _check_options(options, prefix):
+    """A plug-in's options: a mapping of names to numbers, strings, true or
+    false, or lists of those."""
+    if not isinstance(options, dict):
+        raise ScenarioError(f"{prefix} must be a mapping of names to values, got {options!r}")
+    scalar = (int, float, str, bool)
+    for key, value in options.items():
+        if not isinstance(key, str) or not key.isidentifier():
+            raise ScenarioError(f"{prefix}: option name {key!r} is not a valid name")
+        if not (isinstance(value, scalar)
+                or isinstance(value, list) and all(isinstance(v, scalar) for v in value)):
+            raise ScenarioError(f"{prefix}.{key} = {value!r} must be a number, a string, "
+                                "true/false or a list of those")
 
 
 @dc.dataclass
@@ -188,9 +237,10 @@ class Scenario:
         self.controller.validate()
         self.force_reference.validate()
         validate_identifiers(self.identifiers)
-        if self.identifiers and self.controller.name not in ("hybrid", "nn"):
-            raise ScenarioError("identifiers need controller.name = 'hybrid' or 'nn' (they "
-                                "start at its contact switch)")
+        source = self.controller.impedance_source
+        if source and source not in {c.name for c in self.identifiers}:
+            raise ScenarioError(f"controller.impedance_source = '{source}' names no "
+                                f"identifier: choose one of the scenario's identifiers or ''")
         source = self.controller.hybrid.stiffness_source
         if source and source not in {c.name for c in self.identifiers}:
             raise ScenarioError(f"controller.hybrid.stiffness_source = '{source}' names no "
@@ -262,17 +312,34 @@ def scenario_from_data(data: dict, *, source="scenario") -> Scenario:
     a float field given as the string ``"6.2e4"`` is read as YAML 1.2 would),
     then loads and validates it."""
     _check_schema(Scenario, data, prefix="")
+    # A plug-in's options are free-form (Drake's typed YAML has no "any"):
+    # they bypass the typed load and are checked by _check_options.
+    controller = data.get("controller")
+    options = controller.pop("options", {}) if isinstance(controller, dict) else {}
     try:
         scenario = yaml_load_typed(schema=Scenario, data=yaml.safe_dump(data))
     except (RuntimeError, ValueError, TypeError) as e:
         raise ScenarioError(f"{source}: {str(e).splitlines()[0]}") from None
+    if options is None:
+        options = {}
+    scenario.controller.options = options
+    if isinstance(options, dict):
+        controller["options"] = options  # the caller's mapping, unchanged
     scenario.validate()
     return scenario
 
 
 def dump_scenario(scenario: Scenario) -> str:
     """The fully resolved scenario as YAML (what a run writes)."""
-    return yaml_dump_typed(scenario)
+    options = scenario.controller.options
+    if not options:
+        return yaml_dump_typed(scenario)
+    # Drake's typed dump has no free-form mapping: dump without the options,
+    # then put them back in place.
+    bare = dc.replace(scenario, controller=dc.replace(scenario.controller, options={}))
+    data = _yaml_load(yaml_dump_typed(bare))
+    data["controller"]["options"] = options
+    return yaml.safe_dump(data, sort_keys=False)
 
 
 def _apply_override(data: dict, item: str):
@@ -291,6 +358,13 @@ def _apply_override(data: dict, item: str):
             raise ScenarioError(f"--set '{item}': '{part}' is a value, not a section")
         node = child
     node[parts[-1]] = value
+
+
+def check_schema(schema, data, prefix):
+    """Checks a plain mapping against the dataclass ``schema``: every key
+    known, every value of its field's type (a YAML 1.1 float string becomes
+    a float in ``data``); raises ScenarioError naming ``prefix + key``."""
+    _check_schema(schema, data, prefix)
 
 
 def _check_schema(schema, data, prefix):

@@ -70,13 +70,13 @@ def test_a_long_scenario_is_capped_unless_a_duration_is_asked_for():
 def test_the_profile_lists_the_station_python_systems(profile):
     by_path = {s.path: s for s in profile.systems}
     for path, cls in [("station/force_sensor/force_sensor", "ForceSensor"),
-                      ("station/controller/law", "HybridControlLaw"),
-                      ("station/nn_compensator/law", "NnCompensationLaw")]:
+                      ("station/controller/hybrid/law", "HybridControlLaw"),
+                      ("station/controller/nn_compensator/law", "NnCompensationLaw")]:
         assert by_path[path].class_name == cls
         assert by_path[path].calls_per_step > 0 and by_path[path].us_per_step > 0
     # The law's output and its sampled update: twice per 1 ms plant step
     # (the law itself is evaluated once, cached).
-    assert by_path["station/controller/law"].calls_per_step == pytest.approx(2.0, abs=0.01)
+    assert by_path["station/controller/hybrid/law"].calls_per_step == pytest.approx(2.0, abs=0.01)
     # The tip kinematics, the wall and the friction run in C++
     # (SymbolicVectorSystems): the profile, which lists Python systems only,
     # has no row for them.

@@ -40,7 +40,7 @@ def test_a_path_or_a_name_both_work():
     ("arm.time_step=0.002", "arm.time_step = 0.002 is out of range: must be in (0, 0.001] s"),
     ("environment.stifness=3", "environment.stifness is not a scenario key"),
     ("bogus=1", "bogus is not a scenario key"),
-    ("controller.name=pid", "controller.name = 'pid' is unknown: choose one of push"),
+    ("controller.name=pid", "controller.name = 'pid' is unknown: choose one of"),
     ("environment.stiffness=soft", "environment.stiffness = 'soft' must be a number"),
     ("simulation.seed=1.5", "simulation.seed = 1.5 must be a whole number"),
     ("environment=3", "environment must be a mapping of keys"),

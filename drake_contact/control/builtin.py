@@ -1,0 +1,142 @@
+"""The thesis's controllers as plug-in factories.
+
+Registered under the entry-point group ``drake_contact.controllers`` in this
+project's ``pyproject.toml``, exactly as a third-party controller registers
+(:mod:`drake_contact.plugins`). Each factory takes the options mapping and
+returns one Drake System whose ports follow the plug-in contract. For these
+three the station passes the scenario's typed section as the options
+(``controller.push``, ``controller.hybrid``, or both ``hybrid`` and ``nn``
+for ``nn``), so the thesis's scenarios keep their YAML.
+"""
+
+import dataclasses as dc
+
+import numpy as np
+import yaml
+from pydrake.common.yaml import yaml_load_typed
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import Adder, ConstantVectorSource, MatrixGain
+
+from drake_contact.control.hybrid_controller import HybridController, HybridControllerConfig
+from drake_contact.control.nn_compensator import NnCompensator, NnCompensatorConfig
+from drake_contact.control.push_controller import ConstantForcePushController, PushConfig
+from drake_contact.errors import ScenarioError
+from drake_contact.plant.arm import MakeArmModel
+from drake_contact.scenario import check_schema
+
+
+def config_from_options(schema, options: dict, prefix: str):
+    """``schema`` (a dataclass) from a plain mapping: every key known and of
+    its field's type (ScenarioError naming ``prefix.key`` otherwise), then
+    validated with ``prefix``. Fields left out keep their defaults."""
+    data = dict(options)
+    check_schema(schema, data, prefix=f"{prefix}.")
+    try:
+        config = yaml_load_typed(schema=schema, data=yaml.safe_dump(data))
+    except (RuntimeError, ValueError, TypeError) as e:
+        raise ScenarioError(f"{prefix}: {str(e).splitlines()[0]}") from None
+    if hasattr(config, "validate"):
+        config.validate(prefix)
+    return config
+
+
+def push(options: dict):
+    """The constant-force pushing harness (:class:`ConstantForcePushController`);
+    options: the fields of :class:`PushConfig`. Reads the true plant state."""
+    return ConstantForcePushController(
+        MakeArmModel(), config_from_options(PushConfig, options, "controller.push"))
+
+
+class ThesisHybridController(Diagram):
+    """The thesis's approach and hybrid (or decoupled) contact controller as
+    one plug-in system: :class:`HybridController`, with the decoupled law's
+    k_e from the ``impedance_estimate`` input (3, its K_e picked) when
+    ``stiffness_source`` names an identifier, else from the constant
+    ``stiffness_estimate``.
+
+    Inputs: tip_pose, tip_velocity, joint_positions, joint_velocities, force,
+    force_desired (and impedance_estimate). Outputs: joint_torque_commanded,
+    mode, contact_info, tip_jacobian (see :class:`HybridController`)."""
+
+    def __init__(self, config: HybridControllerConfig):
+        super().__init__()
+        builder = DiagramBuilder()
+        hybrid = builder.AddNamedSystem("hybrid", HybridController(config))
+        _export_hybrid(builder, hybrid, config)
+        for name in ("joint_torque_commanded", "mode", "contact_info", "tip_jacobian"):
+            builder.ExportOutput(hybrid.GetOutputPort(name), name)
+        builder.BuildInto(self)
+
+
+def _export_hybrid(builder, hybrid, config: HybridControllerConfig):
+    """Exports the hybrid controller's measured inputs and feeds its k_e."""
+    for name in ("tip_pose", "tip_velocity", "joint_positions", "joint_velocities", "force",
+                 "force_desired"):
+        builder.ExportInput(hybrid.GetInputPort(name), name)
+    if config.stiffness_source:
+        pick = builder.AddNamedSystem("stiffness_from_identifier",
+                                      MatrixGain(np.array([[0.0, 0.0, 1.0]])))
+        builder.ExportInput(pick.get_input_port(), "impedance_estimate")
+        builder.Connect(pick.get_output_port(), hybrid.GetInputPort("stiffness_estimate"))
+    else:
+        stiffness = builder.AddNamedSystem(
+            "stiffness_estimate", ConstantVectorSource([config.stiffness_estimate]))
+        builder.Connect(stiffness.get_output_port(), hybrid.GetInputPort("stiffness_estimate"))
+
+
+def hybrid(options: dict):
+    """The thesis's hybrid controller; options: the fields of
+    :class:`HybridControllerConfig`."""
+    return ThesisHybridController(
+        config_from_options(HybridControllerConfig, options, "controller.hybrid"))
+
+
+@dc.dataclass
+class NnControllerOptions:
+    """Options of the ``nn`` controller: its hybrid part and its compensator."""
+
+    hybrid: HybridControllerConfig = dc.field(default_factory=HybridControllerConfig)
+    nn: NnCompensatorConfig = dc.field(default_factory=NnCompensatorConfig)
+
+
+class ThesisNnController(Diagram):
+    """The hybrid part plus the 9-12-3 compensator (section 4.5):
+    tau = tau_h + J^T n, one plug-in system.
+
+    Inputs: as :class:`ThesisHybridController`. Outputs:
+    joint_torque_commanded (tau_h + J^T n), hybrid_torque (tau_h), nn_output
+    (n), mode, contact_info, tip_jacobian."""
+
+    def __init__(self, hybrid_config: HybridControllerConfig, nn_config: NnCompensatorConfig):
+        super().__init__()
+        builder = DiagramBuilder()
+        hybrid = builder.AddNamedSystem("hybrid", HybridController(hybrid_config))
+        _export_hybrid(builder, hybrid, hybrid_config)
+        compensator = builder.AddNamedSystem(
+            "nn_compensator",
+            NnCompensator(nn_config, hybrid_config.y_desired, hybrid_config.phi_desired))
+        # The compensator reads the same measured pose, force and f_d.
+        for name in ("tip_pose", "force", "force_desired"):
+            builder.ConnectInput(name, compensator.GetInputPort(name))
+        for name in ("tip_jacobian", "mode"):
+            builder.Connect(hybrid.GetOutputPort(name), compensator.GetInputPort(name))
+        tau_h = hybrid.GetOutputPort("joint_torque_commanded")
+        builder.Connect(tau_h, compensator.GetInputPort("hybrid_torque"))
+        total = builder.AddNamedSystem("nn_torque_sum", Adder(2, 3))
+        builder.Connect(tau_h, total.get_input_port(0))
+        builder.Connect(compensator.GetOutputPort("joint_torque"), total.get_input_port(1))
+        builder.ExportOutput(total.get_output_port(), "joint_torque_commanded")
+        builder.ExportOutput(tau_h, "hybrid_torque")
+        builder.ExportOutput(compensator.GetOutputPort("nn_output"), "nn_output")
+        for name in ("mode", "contact_info", "tip_jacobian"):
+            builder.ExportOutput(hybrid.GetOutputPort(name), name)
+        builder.BuildInto(self)
+
+
+def nn(options: dict):
+    """The neural-network controller; options: ``hybrid`` (the fields of
+    :class:`HybridControllerConfig`) and ``nn`` (of :class:`NnCompensatorConfig`)."""
+    config = config_from_options(NnControllerOptions, options, "controller")
+    config.hybrid.validate("controller.hybrid")
+    config.nn.validate("controller.nn")
+    return ThesisNnController(config.hybrid, config.nn)

@@ -1,0 +1,180 @@
+"""Plug-in controllers: any installed package can add one.
+
+A controller is a Drake System. A package makes one available by naming a
+*factory* in its ``pyproject.toml``::
+
+    [project.entry-points."drake_contact.controllers"]
+    jt_pi = "my_package:make_controller"
+
+``make_controller(options: dict) -> System`` gets the scenario's
+``controller.options`` (names to numbers, lists or strings) and returns the
+system. A scenario selects it with ``controller.name: jt_pi``. The built-in
+controllers (``push``, ``hybrid``, ``nn`` and the baselines) register the
+same way, in this project's own ``pyproject.toml``.
+
+The station (:func:`drake_contact.diagram.MakeContactDiagram`) connects the
+controller's input ports **by name** from :data:`CONTROLLER_INPUTS` and takes
+its ``joint_torque_commanded`` output (3, N m); every other vector output is
+logged (the ones of :data:`drake_contact.diagram.CONTROLLER_SIGNALS` under
+their own names, others as ``controller_<port>``). A controller that has no
+``contact_info`` output gets the station's :class:`ContactDetector`, which
+tells contact from the filtered force for the force reference, the
+identifiers and the metrics. Everything a controller needs that evolves in
+time must live in its Context (discrete state): runs are repeatable.
+
+A plug-in that cannot be found, raises while being built, has an input the
+station does not provide or lacks ``joint_torque_commanded`` is refused with
+a :class:`~drake_contact.errors.ScenarioError` naming it (the CLI: one line,
+exit status 2).
+"""
+
+import dataclasses as dc
+from importlib.metadata import entry_points
+
+import numpy as np
+from pydrake.systems.framework import BasicVector, LeafSystem, PortDataType, System
+
+from drake_contact.errors import ScenarioError
+from drake_contact.plant.arm import DeclareSampledUpdate, is_sample_time
+
+#: Entry-point group of controller factories.
+CONTROLLER_GROUP = "drake_contact.controllers"
+
+#: Input ports a controller may declare, by name: (size, meaning). The
+#: station connects each one the controller has.
+CONTROLLER_INPUTS = {
+    "tip_pose": (3, "estimated tip [x, y, phi] from the encoders (m, rad), world"),
+    "tip_velocity": (3, "35 Hz filtered tip velocity (m/s, rad/s)"),
+    "tip_acceleration": (3, "35 Hz filtered tip acceleration (m/s^2, rad/s^2)"),
+    "joint_positions": (3, "joint angles q1, q2 as read, q3 filtered (rad)"),
+    "joint_velocities": (3, "joint velocities by filtered backward differences (rad/s)"),
+    "force": (1, "normal force through the DSP's 120 Hz Butterworth (N, pushing > 0)"),
+    "force_raw": (1, "normal force as the DSP's ADC reads it, tared (N)"),
+    "force_desired": (1, "desired normal force f_d from the scenario's force reference (N)"),
+    "impedance_estimate": (3, "[M_e, B_e, K_e] of the identifier named by "
+                              "controller.impedance_source (kg, N s/m, N/m)"),
+    "plant_state": (6, "TRUE arm state [q; v] (rad, rad/s): ground truth, for test "
+                       "harnesses only (the built-in push)"),
+}
+
+#: Output ports every controller must have: (size, meaning).
+CONTROLLER_REQUIRED_OUTPUTS = {
+    "joint_torque_commanded": (3, "motor command before saturation (N m)"),
+}
+
+
+def installed_controllers() -> dict:
+    """{name: entry point} of every controller installed (built-ins too)."""
+    return {ep.name: ep for ep in entry_points(group=CONTROLLER_GROUP)}
+
+
+def _one_line(e: Exception) -> str:
+    text = str(e).strip().splitlines()
+    return f"{type(e).__name__}: {text[0]}" if text else type(e).__name__
+
+
+def MakeController(name: str, options: dict, *, prefix="controller") -> System:
+    """Builds the installed controller ``name`` from ``options`` and checks
+    its ports against :data:`CONTROLLER_INPUTS` and
+    :data:`CONTROLLER_REQUIRED_OUTPUTS`. Raises ScenarioError naming the
+    plug-in if it is not installed, fails to load or build, or does not fit
+    the station."""
+    found = installed_controllers()
+    if name not in found:
+        raise ScenarioError(f"{prefix}.name = '{name}' is not an installed controller: "
+                            f"choose one of {', '.join(sorted(found))}")
+    where = f"controller '{name}' ({found[name].value})"
+    try:
+        factory = found[name].load()
+    except Exception as e:  # a broken plug-in must not take the CLI down
+        raise ScenarioError(f"{where} could not be loaded: {_one_line(e)}") from None
+    try:
+        system = factory(dict(options))
+    except ScenarioError:
+        raise
+    except Exception as e:
+        raise ScenarioError(f"{where} raised while being built: {_one_line(e)}") from None
+    if not isinstance(system, System):
+        raise ScenarioError(f"{where}: its factory returned a {type(system).__name__}, "
+                            "not a Drake System")
+    check_controller_ports(system, where)
+    return system
+
+
+def check_controller_ports(system: System, where: str):
+    """Raises ScenarioError unless every input of ``system`` is one the
+    station provides, at its size, and its required outputs exist."""
+    for i in range(system.num_input_ports()):
+        port = system.get_input_port(i)
+        name = port.get_name()
+        if name not in CONTROLLER_INPUTS:
+            raise ScenarioError(
+                f"{where}: input port '{name}' is not a station signal: the station provides "
+                f"{', '.join(CONTROLLER_INPUTS)}")
+        size = CONTROLLER_INPUTS[name][0]
+        if port.get_data_type() != PortDataType.kVectorValued or port.size() != size:
+            raise ScenarioError(f"{where}: input port '{name}' must be a vector of size {size}")
+    for name, (size, meaning) in CONTROLLER_REQUIRED_OUTPUTS.items():
+        if not system.HasOutputPort(name):
+            raise ScenarioError(f"{where} has no output port '{name}' ({size}: {meaning})")
+        port = system.GetOutputPort(name)
+        if port.get_data_type() != PortDataType.kVectorValued or port.size() != size:
+            raise ScenarioError(f"{where}: output port '{name}' must be a vector of size {size}")
+
+
+@dc.dataclass
+class ContactDetectorConfig:
+    """When the station's contact detector says the tip is in contact."""
+
+    # Contact from above this filtered force (N), lost below the other (N):
+    # the hybrid controller's switch (thesis section 4.4).
+    contact_threshold_n: float = 5.0
+    contact_loss_threshold_n: float = 0.0
+
+
+class ContactDetector(LeafSystem):
+    """The station's own contact switch, for controllers that have no
+    ``contact_info`` output: the same 5 N rule as the hybrid controller's
+    switch, on the same filtered force, sampled every 1 ms.
+
+    Inputs: ``force`` (1, N, filtered), ``tip_pose`` (3). Outputs (this
+    sample's values, held between samples): ``mode`` (1: 0 no contact, 1
+    contact) and ``contact_info`` (4: [time of the first switch (s) or -1,
+    x, y, phi at the latest switch]), as the hybrid controller's, and
+    ``detected`` (5: both)."""
+
+    def __init__(self, config: ContactDetectorConfig = ContactDetectorConfig()):
+        super().__init__()
+        self._config = config
+        self._force = self.DeclareVectorInputPort("force", 1)
+        self._pose = self.DeclareVectorInputPort("tip_pose", 3)
+        # [mode, first switch time, x, y, phi]
+        self._held = self.DeclareDiscreteState([0.0, -1.0, 0.0, 0.0, 0.0])
+        depends = {self.all_input_ports_ticket(), self.xd_ticket(), self.time_ticket()}
+        self._detected = self.DeclareVectorOutputPort(
+            "detected", 5, self._calc, prerequisites_of_calc=depends)
+        self.DeclareVectorOutputPort("mode", 1, lambda c, out: out.SetAtIndex(
+            0, self._detected.Eval(c)[0]), prerequisites_of_calc=depends)
+        self.DeclareVectorOutputPort("contact_info", 4, lambda c, out: out.SetFromVector(
+            self._detected.Eval(c)[1:]), prerequisites_of_calc=depends)
+        DeclareSampledUpdate(self, self._update)
+
+    def _update(self, context, state):
+        state.set_value(self._detected.Eval(context))
+
+    def _calc(self, context, output: BasicVector):
+        held = context.get_discrete_state(self._held).value()
+        if not is_sample_time(context.get_time()):
+            output.SetFromVector(held)
+            return
+        c = self._config
+        f = self._force.Eval(context)[0]
+        mode, first, *switch = held.tolist()
+        if mode == 0.0 and f > c.contact_threshold_n:
+            mode = 1.0
+            if first < 0:
+                first = context.get_time()
+            switch = self._pose.Eval(context).tolist()
+        elif mode == 1.0 and f < c.contact_loss_threshold_n:
+            mode = 0.0
+        output.SetFromVector(np.array([mode, first, *switch]))
