@@ -1,0 +1,48 @@
+"""Jacobian-transpose PI force control (Siciliano et al., Robotics:
+Modelling, Planning and Control, 2009, sec. 9.4): the tip pushes along x with
+f_c = f_d + K_P e + K_I sum(e) T - D_x xdot (e = f_d - f, summed only above
+5 N) and holds y, phi by a PD, from start_s on (after the DSP's tare);
+tau = J(q)^T [f_c, f_y, m_phi], every 1 ms."""
+from pydrake.systems.framework import LeafSystem
+from drake_contact.plant.planar_arm import tip_jacobian
+
+DEFAULTS = dict(start_s=3.0, kp=0.2, ki=5.0, damping_x=60.0, stiffness_y=500.0, damping_y=10.0,
+                stiffness_phi=10.0, damping_phi=0.2, contact_n=5.0, integral_limit_n=5.0)
+
+
+class JacobianTransposePI(LeafSystem):
+    def __init__(self, gains):
+        super().__init__()
+        self.g = gains
+        for name, size in (("tip_pose", 3), ("tip_velocity", 3), ("joint_positions", 3),
+                           ("force", 1), ("force_desired", 1)):
+            self.DeclareVectorInputPort(name, size)
+        torque = self.DeclareDiscreteState(3)  # N m, held between samples
+        self.DeclareDiscreteState(1)  # the integral of e (N s)
+        self.DeclarePeriodicDiscreteUpdateEvent(1e-3, 0.0, self.update)
+        self.DeclareStateOutputPort("joint_torque_commanded", torque)
+
+    def update(self, context, discrete_state):
+        g, port = self.g, lambda name: self.GetInputPort(name).Eval(context)
+        (x, y, phi), (xd, yd, phid) = port("tip_pose"), port("tip_velocity")
+        f, f_d = port("force")[0], port("force_desired")[0]
+        integral = context.get_discrete_state(1).GetAtIndex(0)
+        if f > g["contact_n"]:
+            integral = min(max(integral + (f_d - f) * 1e-3, -g["integral_limit_n"] / g["ki"]),
+                           g["integral_limit_n"] / g["ki"])
+        if context.get_time() < g["start_s"]:
+            return  # at rest while the DSP tares and the estimator's filters settle
+        wrench = [f_d + g["kp"] * (f_d - f) + g["ki"] * integral - g["damping_x"] * xd,
+                  -g["stiffness_y"] * y - g["damping_y"] * yd,
+                  -g["stiffness_phi"] * phi - g["damping_phi"] * phid]
+        J = tip_jacobian(port("joint_positions"))
+        tau = [sum(J[i][j] * wrench[i] for i in range(3)) for j in range(3)]
+        discrete_state.set_value(0, tau)
+        discrete_state.set_value(1, [integral])
+
+
+def make_controller(options):
+    unknown = set(options) - set(DEFAULTS)
+    if unknown:
+        raise ValueError(f"unknown options {sorted(unknown)}: known are {sorted(DEFAULTS)}")
+    return JacobianTransposePI(DEFAULTS | {k: float(v) for k, v in options.items()})

@@ -1,0 +1,184 @@
+"""Plug-in controllers: found through entry points, wired by port name,
+refused in one line when they do not fit; the example package as a user
+installs it (the README's test command pip-installs examples/jt_pi_controller)."""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from drake_contact import MakeContactDiagram, ScenarioError, dump_scenario, load_scenario
+from drake_contact.plant.arm import CalcSampledUpdate
+from drake_contact.plugins import (
+    CONTROLLER_GROUP, ContactDetector, MakeController, installed_controllers)
+
+
+def drake_contact(*args, cwd, env=None):
+    return subprocess.run([sys.executable, "-m", "drake_contact", *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_builtins_register_through_the_entry_point_group():
+    found = installed_controllers()
+    assert {"push", "hybrid", "nn"} <= set(found)
+    assert all(ep.group == CONTROLLER_GROUP for ep in found.values())
+    assert found["hybrid"].value == "drake_contact.control.builtin:hybrid"
+
+
+def test_the_example_package_is_installed_and_found():
+    found = installed_controllers()
+    assert "jt_pi" in found, "pip install ./examples/jt_pi_controller (the README's test command)"
+    system = MakeController("jt_pi", {"kp": 0.3})
+    assert system.GetOutputPort("joint_torque_commanded").size() == 3
+    with pytest.raises(ScenarioError, match=r"controller 'jt_pi' \(drake_contact_jt_pi:"
+                                            r"make_controller\) raised while being built: "
+                                            r"ValueError: unknown options \['gain'\]"):
+        MakeController("jt_pi", {"gain": 1})
+
+
+def test_the_example_runs_in_nn_styrofoams_environment_from_the_cli(tmp_path):
+    out = tmp_path / "out"
+    result = drake_contact("run", "nn_styrofoam", "--out", str(out), "--duration", "6",
+                           "--no-figures", "--no-baseline", "--set", "controller.name=jt_pi",
+                           "--set", "controller.options.kp=0.2", "--set",
+                           "scoring.window_start_s=1", "--set", "scoring.window_end_s=2",
+                           cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    metrics = json.loads((out / "metrics.json").read_text())
+    # The station's own detector tells contact (no contact_info output):
+    # the plug-in starts pushing at 3 s, after the DSP's 2 s tare.
+    assert 3.0 < metrics["contact_time_s"] < 3.5
+    assert metrics["contact_losses"] == 0
+    assert abs(metrics["force_mean_n"] - 20.0) < 3.0  # 20 N held 1-2 s after contact
+    assert "kp: 0.2" in (out / "scenario.yaml").read_text()
+
+
+BROKEN = {
+    "no_torque": """
+        class Plugin(LeafSystem):
+            def __init__(self):
+                super().__init__()
+                self.DeclareVectorInputPort("force", 1)
+                self.DeclareVectorOutputPort("torque", 3, lambda c, o: o.SetZero())
+        def make(options):
+            return Plugin()
+        """,
+    "strange_input": """
+        class Plugin(LeafSystem):
+            def __init__(self):
+                super().__init__()
+                self.DeclareVectorInputPort("wall_stiffness", 1)
+                self.DeclareVectorOutputPort("joint_torque_commanded", 3, lambda c, o: o.SetZero())
+        def make(options):
+            return Plugin()
+        """,
+    "raises": """
+        def make(options):
+            raise RuntimeError("no license server")
+        """,
+    "not_a_system": """
+        def make(options):
+            return 42
+        """,
+}
+
+
+@pytest.fixture
+def broken_plugins(tmp_path):
+    """A package of broken controllers, installed as pip would (a
+    .dist-info with entry_points.txt on the path), without pip."""
+    site = tmp_path / "site"
+    package = site / "broken_plugins"
+    package.mkdir(parents=True)
+    (package / "__init__.py").write_text("")
+    lines = [f"[{CONTROLLER_GROUP}]"]
+    for name, source in BROKEN.items():
+        (package / f"{name}.py").write_text(
+            "from pydrake.systems.framework import LeafSystem\n" + textwrap.dedent(source))
+        lines.append(f"{name} = broken_plugins.{name}:make")
+    info = site / "broken_plugins-1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: broken_plugins\nVersion: 1.0\n")
+    (info / "entry_points.txt").write_text("\n".join(lines) + "\n")
+    sys.path.insert(0, str(site))
+    yield site
+    sys.path.remove(str(site))
+    for name in [m for m in sys.modules if m.startswith("broken_plugins")]:
+        del sys.modules[name]
+
+
+@pytest.mark.parametrize("name, message", [
+    ("no_torque", "controller 'no_torque' (broken_plugins.no_torque:make) has no output port "
+                  "'joint_torque_commanded' (3: motor command before saturation (N m))"),
+    ("strange_input", "input port 'wall_stiffness' is not a station signal: the station "
+                      "provides tip_pose, tip_velocity"),
+    ("raises", "controller 'raises' (broken_plugins.raises:make) raised while being built: "
+               "RuntimeError: no license server"),
+    ("not_a_system", "its factory returned a int, not a Drake System"),
+])
+def test_a_plugin_that_does_not_fit_is_refused_naming_it(broken_plugins, name, message):
+    scenario = load_scenario("nn_styrofoam", [f"controller.name={name}"])
+    with pytest.raises(ScenarioError) as info:
+        MakeContactDiagram(scenario)
+    assert message in str(info.value)
+
+
+def test_the_cli_refuses_a_plugin_without_joint_torque_with_exit_2(broken_plugins, tmp_path):
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [str(broken_plugins), os.environ.get("PYTHONPATH", "")]))
+    result = drake_contact("run", "nn_styrofoam", "--out", str(tmp_path / "out"),
+                           "--set", "controller.name=no_torque", cwd=tmp_path, env=env)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in result.stderr
+    assert "controller 'no_torque'" in lines[0] and "'joint_torque_commanded'" in lines[0]
+
+
+def test_an_unknown_controller_lists_the_installed_ones():
+    with pytest.raises(ScenarioError, match=r"controller.name = 'pid' is unknown: choose one of "
+                                            r".*hybrid, .*nn, .*push"):
+        load_scenario("nn_styrofoam", ["controller.name=pid"])
+
+
+def test_a_typed_builtin_refuses_options():
+    with pytest.raises(ScenarioError, match=r"controller.options: the built-in 'hybrid' is "
+                                            r"configured by controller.hybrid"):
+        load_scenario("hybrid_p_only_styrofoam", ["controller.options.gain=3"])
+
+
+def test_options_must_be_numbers_strings_or_lists():
+    with pytest.raises(ScenarioError, match=r"controller.options.gains = \{'a': 1\} must be"):
+        load_scenario("nn_styrofoam", ["controller.name=jt_pi", "controller.options.gains={a: 1}"])
+
+
+def test_options_survive_the_resolved_scenario():
+    scenario = load_scenario("nn_styrofoam", ["controller.name=jt_pi",
+                                              "controller.options.kp=0.3",
+                                              "controller.options.mode=fast",
+                                              "controller.options.axes=[1, 2]"])
+    again = load_scenario(dump_scenario(scenario))
+    assert again.controller.options == {"kp": 0.3, "mode": "fast", "axes": [1, 2]}
+    assert again == scenario
+
+
+def test_the_contact_detector_switches_at_5_n_and_records_the_pose():
+    detector = ContactDetector()
+    context = detector.CreateDefaultContext()
+    detector.GetInputPort("tip_pose").FixValue(context, [0.457, 0.001, 0.002])
+    context.SetTime(2.0)
+    detector.GetInputPort("force").FixValue(context, [4.9])
+    assert detector.GetOutputPort("mode").Eval(context)[0] == 0.0
+    assert detector.GetOutputPort("contact_info").Eval(context)[0] == -1.0
+    detector.GetInputPort("force").FixValue(context, [5.1])
+    np.testing.assert_array_equal(detector.GetOutputPort("contact_info").Eval(context),
+                                  [2.0, 0.457, 0.001, 0.002])
+    context.SetDiscreteState(CalcSampledUpdate(detector, context).get_vector(0).get_value())
+    # Later samples keep the first switch time; below 0 N contact is lost.
+    context.SetTime(2.5)
+    detector.GetInputPort("force").FixValue(context, [-0.1])
+    assert detector.GetOutputPort("mode").Eval(context)[0] == 0.0
+    assert detector.GetOutputPort("contact_info").Eval(context)[0] == 2.0
