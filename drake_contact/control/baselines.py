@@ -41,9 +41,15 @@ and x_o the measured x at the hold's last sample: during the hold x_d
 follows the measured x (damping only along x), because the estimator's
 filters start from zero and its pose is wrong for the first few tens of
 ms, so a pose latched at the first sample would be too. After a contact
-loss x_o is the x there and the ramp resumes at once (no second hold). The contact switch is the hybrid controller's: to contact when the
+loss x_o is the x there and the ramp resumes at once (no second hold).
+The contact switch is the hybrid controller's: to contact when the
 filtered force exceeds ``contact_threshold_n`` (5 N), back to the approach
 when it drops below ``contact_loss_threshold_n`` (0 N).
+
+Default gains: one set per controller, tuned closed loop on the
+``nn_styrofoam`` scenario (20/10 N square wave) over walls K_e in {3000,
+30000, 150000} N/m x B_e in {10, 300} N s/m, none losing contact on any
+(see each config's comments for the reasons).
 
 e_x is the wall's normal, world +x; x = [x, y, phi] is the tip pose. M, h,
 J and Jdot qdot are the controller's model of the arm (controller_model.py,
@@ -189,8 +195,13 @@ class ParallelForceConfig(ApproachOptions):
     position_gain: float = 400.0
     velocity_gain: float = 120.0
     # Force loop along x: K_F ((m/s^2)/N) and K_I ((m/s^2)/(N s)). The
-    # integral outweighs the position loop at steady state.
-    force_gain: float = 0.05
+    # integral outweighs the position loop at steady state. K_F K_e is the
+    # force loop's stiffness per unit mass (10500 1/s^2 on a 150000 N/m
+    # wall): large enough there to catch the slip after stiction lets go
+    # (K_F 0.03-0.05 lost contact on 20 -> 10 N steps), small on soft walls,
+    # where the integral does the work (slow pole about K_I K_e / (K_P +
+    # K_F K_e): 2 1/s at 3000 N/m).
+    force_gain: float = 0.07
     force_integral_gain: float = 0.4
 
     def validate(self, prefix=OPTIONS_PREFIX):
