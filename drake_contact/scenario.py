@@ -50,6 +50,12 @@ def _yaml_load(text):
     return yaml.load(text, Loader=_Loader)
 
 
+def yaml_load(text):
+    """YAML text as plain data, numbers read as YAML 1.2 (``6.2e4`` is a
+    number), as scenarios are."""
+    return _yaml_load(text)
+
+
 #: Built-in controllers configured by their own typed section of
 #: ``controller`` (every other installed controller takes ``controller.options``).
 TYPED_CONTROLLERS = ("push", "hybrid", "nn")

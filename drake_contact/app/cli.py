@@ -82,6 +82,19 @@ def _build_parser():
                        help="a running Dask scheduler, e.g. tcp://10.0.0.5:8786")
     sweep.add_argument("--quick", action="store_true",
                        help="the sweep's short version (its quick: section)")
+    benchmark = commands.add_parser(
+        "benchmark", help="every controller on the same tasks and walls, on a Dask cluster; "
+                          "write leaderboard.csv, .md, .html")
+    benchmark.add_argument("--out", required=True, help="output folder (rerun it to resume)")
+    benchmark.add_argument("--controllers", metavar="A,B,...",
+                           help="contenders (default: the thesis's, the robust ones and every "
+                                "installed controller but the push harness)")
+    benchmark.add_argument("--suite", default="standard", help="quick or standard (default)")
+    where = benchmark.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int,
+                       help="worker processes of a local cluster (default: one per core)")
+    where.add_argument("--scheduler", metavar="ADDRESS",
+                       help="a running Dask scheduler, e.g. tcp://10.0.0.5:8786")
     return parser
 
 
@@ -187,6 +200,31 @@ def _cmd_sweep(args):
     return EXIT_INTERRUPTED if result.interrupted else 0
 
 
+def _cmd_benchmark(args):
+    from drake_contact.app.benchmark import SUITES, contender_names, run_benchmark
+    from drake_contact.app.sweep import terminal_progress
+    if args.workers is not None and args.workers < 1:
+        raise ScenarioError(f"--workers = {args.workers} is out of range: must be >= 1")
+    if args.suite not in SUITES:
+        raise ScenarioError(f"--suite = {args.suite} is unknown: choose one of "
+                            f"{', '.join(SUITES)}")
+    contender_names(args.controllers)  # bad names: one line before any folder is made
+    _check_out(args.out)
+    result = run_benchmark(args.out, contenders=args.controllers, suite=args.suite,
+                           workers=args.workers, scheduler=args.scheduler,
+                           progress=terminal_progress())
+    overall = sorted((e for e in result.board if e["task"] == "all"), key=lambda e: e["rank"])
+    print(f"{len(result.rows)} runs ({result.ran} now, {result.skipped} from before) in "
+          f"{result.wall_s:.0f} s on {result.workers} workers")
+    for e in overall:
+        print(f"{e['rank']:3d}. {e['contender']:18s} mean task rank {e['mean_rank']:.2f}, "
+              f"lost contact in {e['runs_losing_contact']}/{e['runs']} runs, median force RMSE "
+              + (f"{e['force_rmse_n_median']:.2f} N" if e['force_rmse_n_median'] is not None
+                 else "-"))
+    print(f"wrote {args.out}/leaderboard.md, leaderboard.csv and leaderboard.html")
+    return EXIT_INTERRUPTED if result.interrupted else 0
+
+
 def _check_out(path):
     """Creates the output folder (once the input is known to be valid), or
     refuses it in one line (ScenarioError)."""
@@ -204,7 +242,8 @@ def main(argv=None) -> int:
     args = _build_parser().parse_args(argv)
     try:
         return {"run": _cmd_run, "list": _cmd_list, "bench": _cmd_bench,
-                "reproduce": _cmd_reproduce, "sweep": _cmd_sweep}[args.command](args)
+                "reproduce": _cmd_reproduce, "sweep": _cmd_sweep,
+                "benchmark": _cmd_benchmark}[args.command](args)
     except ScenarioError as e:
         print(f"drake-contact: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -149,6 +149,11 @@ def tracking_metrics(log: dict, scenario: Scenario) -> dict:
                                                          - hybrid.phi_desired))),
         })
     out.update(adaptation_metrics(log, t_contact, s))
+    if window.sum() > 0:
+        out.update(step_metrics(log, window))
+        if "joint_torque_applied" in log:
+            torque = log["joint_torque_applied"][window]
+            out["torque_rms_nm"] = float(np.sqrt(np.mean(np.sum(torque**2, axis=1))))
     if scenario.force_reference.sine_amplitude_n == 0:
         out.update(level_metrics(log, t_contact, s))
     return out
@@ -177,6 +182,50 @@ def level_metrics(log: dict, t_contact: float, scoring) -> dict:
         worst = deviation if worst is None else max(worst, deviation)
         count += 1
     return {"level_max_error_n": worst, "level_count": count}
+
+
+#: A change of f_d by more than this between two samples is a step (N);
+#: the thesis's sine changes f_d by at most 0.013 N per sample.
+STEP_MIN_N = 1.0
+#: A step has settled once |f - f_d| stays within this share of its size,
+#: or STEP_BAND_MIN_N if larger, to the next step.
+STEP_BAND = 0.1
+STEP_BAND_MIN_N = 1.0
+
+
+def step_metrics(log: dict, window) -> dict:
+    """The true force's response to each step of f_d inside ``window`` (a
+    boolean mask), up to the next step or the window's end:
+    ``step_overshoot_pct``, the median over steps of the largest excursion
+    of f - f_d past the new level in the step's direction, in % of the
+    step (0 if none), and ``step_overshoot_max_pct`` the largest;
+    ``step_settling_s``, the median time from the step until |f - f_d|
+    stays within max(10 % of the step, 1 N) to the next one, over the steps
+    that settle; ``step_unsettled``, the steps that never do; ``step_count``."""
+    t, force, desired = log["t"], log["contact_force_true"], log["force_desired"]
+    inside = np.flatnonzero(window)
+    first, last = inside[0], inside[-1] + 1
+    steps = [int(i) + 1 for i in np.flatnonzero(np.abs(np.diff(desired[first:last]))
+                                                > STEP_MIN_N) + first]
+    overshoots, settling, unsettled = [], [], 0
+    for k, start in enumerate(steps):
+        stop = steps[k + 1] if k + 1 < len(steps) else last
+        size = desired[start] - desired[start - 1]
+        error = force[start:stop] - desired[start:stop]
+        overshoots.append(max(0.0, float(np.max(np.sign(size) * error))) / abs(size) * 100)
+        outside = np.flatnonzero(np.abs(error) > max(STEP_BAND * abs(size), STEP_BAND_MIN_N))
+        if len(outside) and outside[-1] == len(error) - 1:
+            unsettled += 1
+        else:
+            settled = outside[-1] + 1 if len(outside) else 0
+            settling.append(float(t[start + settled] - t[start]))
+    return {
+        "step_count": len(steps),
+        "step_overshoot_pct": float(np.median(overshoots)) if overshoots else None,
+        "step_overshoot_max_pct": float(np.max(overshoots)) if overshoots else None,
+        "step_settling_s": float(np.median(settling)) if settling else None,
+        "step_unsettled": unsettled,
+    }
 
 
 #: adaptation_time_s slides its window by this much (s).

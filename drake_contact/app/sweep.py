@@ -357,56 +357,17 @@ def run_sweep(sweep: Sweep, out_dir, *, workers=None, scheduler=None, progress=N
     ``workers``: the LocalCluster's worker processes (default: one per
     core); ``scheduler``: an address of a running cluster instead.
     ``progress(done, failed, total, eta_s)`` is called as tasks finish."""
-    from distributed import Client, LocalCluster, as_completed
-
     out = Path(out_dir)
     runs = out / "runs"
     runs.mkdir(parents=True, exist_ok=True)
     (out / "sweep.yaml").write_text(yaml.safe_dump(_resolved(sweep), sort_keys=False))
     tasks = sweep.tasks()
     todo = [t for t in tasks if finished_metrics(runs / t.name) is None]
-    timings, interrupted, startup = {}, False, 0.0
-    start = time.perf_counter()
-    cluster = None
-    if todo:
-        if scheduler:
-            client = Client(scheduler)
-        else:
-            cluster = LocalCluster(n_workers=workers or os.cpu_count(), threads_per_worker=1,
-                                   processes=True, dashboard_address=":0")
-            client = Client(cluster)
-        n_workers = len(client.scheduler_info()["workers"])
-        # Import the simulation on every worker first, so that the per-point
-        # overhead below is the sweep's own (start-up is reported apart).
-        client.run(_warm_up)
-        startup = time.perf_counter() - start
-        start = time.perf_counter()
-        try:
-            futures = {client.submit(run_point, sweep.scenario, sweep.overrides + t.overrides(),
-                                     t.seed, str(runs / t.name), sweep.baseline,
-                                     key=f"point-{t.name}",
-                                     pure=False): t for t in todo}
-            failed = 0
-            for done, future in enumerate(as_completed(futures), start=1):
-                task = futures[future]
-                try:
-                    timings[task.name] = future.result()
-                except Exception as e:  # noqa: BLE001 - e.g. KilledWorker: the row says so
-                    timings[task.name] = {"failure": f"{type(e).__name__}: {e}",
-                                          "started": 0.0, "finished": 0.0}
-                failed += timings[task.name]["failure"] is not None
-                if progress is not None:
-                    elapsed = time.perf_counter() - start
-                    progress(done, failed, len(todo), elapsed / done * (len(todo) - done))
-        except KeyboardInterrupt:
-            interrupted = True
-        finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
-    else:
-        n_workers = 0
-    wall = time.perf_counter() - start
+    batch = run_points([(t.name, sweep.scenario, sweep.overrides + t.overrides(), t.seed,
+                         str(runs / t.name), sweep.baseline) for t in todo],
+                       workers=workers, scheduler=scheduler, progress=progress)
+    timings, interrupted, n_workers = batch.timings, batch.interrupted, batch.workers
+    startup, wall = batch.startup_s, batch.wall_s
     rows = [row_of(sweep, t, runs / t.name, timings.get(t.name)) for t in tasks]
     write_results(rows, sweep.fields, out / "results.csv")
     durations = [tm["finished"] - tm["started"] for tm in timings.values() if tm["started"]]
@@ -418,6 +379,68 @@ def run_sweep(sweep: Sweep, out_dir, *, workers=None, scheduler=None, progress=N
     if figures:
         _write_figures(sweep, result, out)
     return result
+
+
+@dc.dataclass
+class PointsRun:
+    """What :func:`run_points` returns."""
+
+    # Point name -> its timing (run_point's dict, or a failure).
+    timings: dict
+    interrupted: bool
+    workers: int
+    # Cluster start and the workers' first import (s); the points' wall time (s).
+    startup_s: float
+    wall_s: float
+
+
+def run_points(points, *, workers=None, scheduler=None, progress=None) -> PointsRun:
+    """Runs ``points`` (tuples ``(name, scenario, overrides, seed, out_dir,
+    baseline)``, the arguments of :func:`run_point` after a unique name) as
+    tasks on a Dask cluster: a LocalCluster of ``workers`` processes
+    (default one per core) or the running cluster at ``scheduler``.
+    ``progress(done, failed, total, eta_s)`` is called as points finish;
+    Ctrl-C stops the batch (``interrupted``), keeping what finished."""
+    from distributed import Client, LocalCluster, as_completed
+
+    timings, interrupted, startup, n_workers = {}, False, 0.0, 0
+    start = time.perf_counter()
+    if points:
+        cluster = None
+        if scheduler:
+            client = Client(scheduler)
+        else:
+            cluster = LocalCluster(n_workers=workers or os.cpu_count(), threads_per_worker=1,
+                                   processes=True, dashboard_address=":0")
+            client = Client(cluster)
+        n_workers = len(client.scheduler_info()["workers"])
+        # Import the simulation on every worker first, so that the per-point
+        # overhead is the batch's own (start-up is reported apart).
+        client.run(_warm_up)
+        startup = time.perf_counter() - start
+        start = time.perf_counter()
+        try:
+            futures = {client.submit(run_point, *args, key=f"point-{name}", pure=False): name
+                       for name, *args in points}
+            failed = 0
+            for done, future in enumerate(as_completed(futures), start=1):
+                name = futures[future]
+                try:
+                    timings[name] = future.result()
+                except Exception as e:  # noqa: BLE001 - e.g. KilledWorker: the row says so
+                    timings[name] = {"failure": f"{type(e).__name__}: {e}",
+                                     "started": 0.0, "finished": 0.0}
+                failed += timings[name]["failure"] is not None
+                if progress is not None:
+                    elapsed = time.perf_counter() - start
+                    progress(done, failed, len(points), elapsed / done * (len(points) - done))
+        except KeyboardInterrupt:
+            interrupted = True
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    return PointsRun(timings, interrupted, n_workers, startup, time.perf_counter() - start)
 
 
 def _resolved(sweep: Sweep) -> dict:

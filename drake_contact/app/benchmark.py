@@ -1,0 +1,408 @@
+"""Every controller on the same force-control tasks, on walls none was tuned
+on, ranked: ``drake-contact benchmark``.
+
+    drake-contact benchmark --out DIR [--controllers A,B,...] [--suite quick|standard]
+                            [--workers N | --scheduler ADDRESS]
+
+A **contender** is a controller with one set of options for the whole
+suite: an installed controller by name (its default options), or one of the
+project's scenarios whose ``controller`` section (and, for
+``adaptive_hybrid``, its identifiers and estimator) it takes
+(:data:`SCENARIO_CONTENDERS`: the thesis's ``hybrid`` (P only and PI)
+and ``nn`` as tuned on styrofoam, the robust ``nn_robust`` and
+``adaptive_hybrid``). Everything else is the suite's: the arm with the
+model errors of the thesis's styrofoam runs (``nn_styrofoam``: joint 2's
+drive 1.2 times its command), the sensor and DSP, the wall and the task.
+
+A **task** (:data:`TASKS`) is a force reference and an environment law: a
+20 N hold, the thesis's 20/10 N square wave, the square wave plus 4 sin(pi
+t), K_e drifting +1 %/s during contact, Hunt-Crossley contact, and
+tangential (Coulomb) friction at the wall. Each runs on every wall of the
+suite (:data:`SUITES`), one noise seed per wall. The walls of ``standard``
+lie between the points the baselines and the robust schemes were tuned on.
+
+Each run is one point on the Dask sweep runner
+(:func:`drake_contact.app.sweep.run_points`), into
+``DIR/runs/<contender>/<task>/<wall>/``. Scores per run come from
+``metrics.json`` (force RMSE in the scoring window, the worst 5 s window,
+overshoot and settling after each step of f_d, contact losses, y and phi
+errors, torque effort); per contender and task they are the median and the
+worst over the walls. A contender ranks by the runs in which it lost
+contact, then by its median force RMSE; its overall rank is by its mean
+rank over the tasks. Writes ``runs.csv`` (every run), ``leaderboard.csv``
+(per contender and task, with the ranks), ``leaderboard.md`` and
+``leaderboard.html`` (the tables and one figure per task), ``figures/``.
+"""
+
+import base64
+import csv
+import dataclasses as dc
+import html
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from drake_contact.app.sweep import finished_metrics, run_points
+from drake_contact.errors import ScenarioError
+from drake_contact.plugins import installed_controllers
+from drake_contact.resources import scenarios_dir
+from drake_contact.scenario import yaml_load
+
+#: The suite's plant, sensor and DSP (and the scenario every run starts from).
+BASE_SCENARIO = "nn_styrofoam"
+
+#: The sections a contender from a scenario may bring (the rest is the suite's).
+CONTENDER_SECTIONS = ("controller", "identifiers", "estimator")
+#: Contenders taken from a bundled scenario: name -> (scenario, the
+#: sections taken from it). The thesis's hybrid controller as its neural
+#: runs use it (P only, K_fp 0.25) and as its identification runs do (PI,
+#: K_fp 1, K_fi 0.003, without their seven identifiers); the thesis's
+#: neural controller; ours: nn_robust and adaptive_hybrid (its RLS with it).
+SCENARIO_CONTENDERS = {
+    "hybrid": ("hybrid_p_only_styrofoam", ("controller",)),
+    "hybrid_pi": ("identify_styrofoam", ("controller",)),
+    "nn": ("nn_styrofoam", ("controller",)),
+    "nn_robust": ("nn_robust", ("controller",)),
+    "adaptive_hybrid": ("adaptive_hybrid", CONTENDER_SECTIONS),
+}
+#: Installed controllers left out unless asked for: test harnesses.
+NOT_CONTENDERS = ("push",)
+
+_SQUARE = ["force_reference.levels=[20.0, 10.0]", "force_reference.half_period_s=2.5"]
+#: Task name -> (what it is, overrides of the base scenario).
+TASKS = {
+    "hold": ("20 N held", ["force_reference.levels=[20.0]"]),
+    "square": ("20/10 N square wave, 2.5 s per level (the thesis's)", _SQUARE),
+    "square_sine": ("the square wave plus 4 sin(pi t) N (the thesis's)",
+                    _SQUARE + ["force_reference.sine_amplitude_n=4.0",
+                               "force_reference.sine_frequency_hz=0.5"]),
+    "drift": ("the square wave on a wall whose K_e grows 1 %/s",
+              _SQUARE + ["environment.stiffness_drift_per_s=0.01"]),
+    "hunt_crossley": ("the square wave on a Hunt-Crossley wall (exponent 1.5)",
+                      _SQUARE + ["environment.law=hunt_crossley"]),
+    "friction": ("the square wave with wall friction mu = 0.3",
+                 _SQUARE + ["environment.friction_coefficient=0.3"]),
+}
+
+
+@dc.dataclass(frozen=True)
+class Suite:
+    """Walls, tasks and run length of a benchmark suite."""
+
+    # [K_e (N/m), B_e (N s/m)] per wall; wall i runs with noise seed i.
+    walls: tuple
+    tasks: tuple
+    # Simulated time per run (s) and the scoring window after the first
+    # contact switch (s): long enough for the slowest approach (the thesis's
+    # hybrid controller touches at about 8.3 s).
+    duration_s: float
+    window_s: tuple
+
+
+SUITES = {
+    "quick": Suite(walls=((5000.0, 30.0), (60000.0, 200.0)), tasks=("hold", "square"),
+                   duration_s=16.0, window_s=(1.0, 6.0)),
+    "standard": Suite(
+        walls=tuple((k, b) for k in (4000.0, 12000.0, 40000.0, 120000.0) for b in (15.0, 150.0)),
+        tasks=tuple(TASKS), duration_s=30.0, window_s=(2.0, 20.0)),
+}
+
+#: Per-run scores: (column of runs.csv, metrics.json key or None: computed
+#: here); leaderboard.csv has each one's median and worst over the walls.
+SCORES = [
+    ("force_rmse_n", "force_rmse_n"),
+    ("worst_window_rmse_n", None),
+    ("step_overshoot_pct", "step_overshoot_pct"),
+    ("step_settling_s", "step_settling_s"),
+    ("step_unsettled", "step_unsettled"),
+    ("contact_losses", "contact_losses"),
+    ("impact_peak_force_n", "impact_peak_force_n"),
+    ("y_max_abs_error_mm", "y_max_abs_error_m"),
+    ("phi_max_abs_error_mrad", "phi_max_abs_error_rad"),
+    ("torque_rms_nm", "torque_rms_nm"),
+]
+_SCALE = {"y_max_abs_error_m": 1e3, "phi_max_abs_error_rad": 1e3}
+
+
+def contender_names(requested=None) -> list:
+    """The contenders: ``requested`` (comma-separated names, checked), or
+    every scenario contender and installed controller but the harnesses."""
+    installed = installed_controllers()
+    known = list(SCENARIO_CONTENDERS) + sorted(set(installed) - set(SCENARIO_CONTENDERS))
+    if not requested:
+        return [name for name in known if name not in NOT_CONTENDERS]
+    names = [name.strip() for name in requested.split(",") if name.strip()]
+    for name in names:
+        if name not in known:
+            raise ScenarioError(f"--controllers: '{name}' is neither an installed controller "
+                                f"nor a scenario contender: choose from {', '.join(known)}")
+    if len(set(names)) != len(names):
+        raise ScenarioError(f"--controllers = {requested}: a name is given twice")
+    return names
+
+
+def contender_scenario(name: str) -> dict:
+    """The base scenario (a mapping) with contender ``name``'s sections."""
+    data = yaml_load((scenarios_dir() / f"{BASE_SCENARIO}.yaml").read_text())
+    for section in CONTENDER_SECTIONS:
+        data.pop(section, None)
+    if name in SCENARIO_CONTENDERS:
+        scenario, sections = SCENARIO_CONTENDERS[name]
+        own = yaml_load((scenarios_dir() / f"{scenario}.yaml").read_text())
+        data |= {section: own[section] for section in sections if section in own}
+    else:
+        data["controller"] = {"name": name}
+    return data
+
+
+@dc.dataclass(frozen=True)
+class Run:
+    contender: str
+    task: str
+    wall: int
+    stiffness: float
+    damping: float
+
+    @property
+    def seed(self) -> int:
+        return self.wall
+
+    @property
+    def path(self) -> str:
+        return (f"{self.contender}/{self.task}/"
+                f"wall{self.wall}_K{self.stiffness:g}_B{self.damping:g}")
+
+    def overrides(self, suite: Suite) -> list:
+        return TASKS[self.task][1] + [
+            f"environment.stiffness={self.stiffness}", f"environment.damping={self.damping}",
+            f"simulation.duration={suite.duration_s}",
+            f"scoring.window_start_s={suite.window_s[0]}",
+            f"scoring.window_end_s={suite.window_s[1]}"]
+
+
+def plan(contenders, suite: Suite) -> list:
+    return [Run(c, task, i, k, b) for c in contenders for task in suite.tasks
+            for i, (k, b) in enumerate(suite.walls)]
+
+
+def score_run(run: Run, run_dir: Path, suite: Suite) -> dict:
+    """One row of runs.csv."""
+    row = {"contender": run.contender, "task": run.task, "wall": run.wall,
+           "stiffness_n_per_m": run.stiffness, "damping_n_s_per_m": run.damping,
+           "seed": run.seed}
+    metrics = finished_metrics(run_dir)
+    if metrics is None:
+        failure = run_dir / "failure.json"
+        message = json.loads(failure.read_text())["message"] if failure.exists() else "not run"
+        return row | {"status": "failed", "message": message}
+    status = metrics["status"]
+    if status == "completed" and metrics.get("contact_losses"):
+        status = "lost_contact"
+    if status == "completed" and metrics.get("contact_time_s") is None:
+        status = "no_contact"
+    row |= {"status": status, "message": metrics.get("message", "")}
+    for column, key in SCORES:
+        if key is not None:
+            value = metrics.get(key)
+            row[column] = None if value is None else value * _SCALE.get(key, 1)
+    # Worst 5 s window (rmse_window_s) that lies inside the scoring window.
+    windows = metrics.get("force_rmse_windows_n") or []
+    width = 5.0
+    inside = [w for k, w in enumerate(windows)
+              if k * width >= suite.window_s[0] - 1e-9
+              and (k + 1) * width <= suite.window_s[1] + 1e-9]
+    row["worst_window_rmse_n"] = max(inside) if inside else None
+    return row
+
+
+def _median(values):
+    values = [v for v in values if v is not None and np.isfinite(v)]
+    return float(np.median(values)) if values else None
+
+
+def _max(values):
+    values = [v for v in values if v is not None and np.isfinite(v)]
+    return float(np.max(values)) if values else None
+
+
+def aggregate(rows, contenders, tasks) -> list:
+    """leaderboard.csv rows: per contender and task, the median and worst of
+    each score over the walls, the runs that lost contact or failed, and
+    the task rank; then one overall row per contender."""
+    board = []
+    for task in tasks:
+        entries = []
+        for contender in contenders:
+            runs = [r for r in rows if r["contender"] == contender and r["task"] == task]
+            bad = sum(r["status"] in ("lost_contact", "diverged", "failed", "no_contact")
+                      for r in runs)
+            entry = {"contender": contender, "task": task, "runs": len(runs),
+                     "runs_losing_contact": sum(r["status"] == "lost_contact" for r in runs),
+                     "runs_failed": sum(r["status"] in ("diverged", "failed", "no_contact")
+                                        for r in runs), "_bad": bad}
+            for column, _ in SCORES:
+                values = [r.get(column) for r in runs]
+                entry[f"{column}_median"] = _median(values)
+                entry[f"{column}_worst"] = _max(values)
+            entries.append(entry)
+        order = sorted(entries, key=lambda e: (e["_bad"], e["force_rmse_n_median"]
+                                               if e["force_rmse_n_median"] is not None
+                                               else np.inf))
+        for rank, entry in enumerate(order, start=1):
+            entry["rank"] = rank
+        board += order
+    for contender in contenders:
+        ranks = [e["rank"] for e in board if e["contender"] == contender and e["task"] != "all"]
+        board.append({"contender": contender, "task": "all", "mean_rank": float(np.mean(ranks)),
+                      "runs": sum(e["runs"] for e in board if e["contender"] == contender),
+                      "runs_losing_contact": sum(e["runs_losing_contact"] for e in board
+                                                 if e["contender"] == contender),
+                      "runs_failed": sum(e["runs_failed"] for e in board
+                                         if e["contender"] == contender),
+                      "force_rmse_n_median": _median([r.get("force_rmse_n") for r in rows
+                                                      if r["contender"] == contender])})
+    overall = sorted([e for e in board if e["task"] == "all"], key=lambda e: e["mean_rank"])
+    for rank, entry in enumerate(overall, start=1):
+        entry["rank"] = rank
+    for entry in board:
+        entry.pop("_bad", None)
+    return board
+
+
+def _write_csv(rows, path: Path, first):
+    columns = list(first) + sorted({k for r in rows for k in r} - set(first))
+    with path.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=columns)
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: "" if row.get(k) is None else row.get(k) for k in columns})
+
+
+def _fmt(value, digits=2):
+    if value is None:
+        return "-"
+    if isinstance(value, float):
+        return f"{value:.{digits}f}"
+    return str(value)
+
+
+def markdown(board, suite_name, suite: Suite, wall_s=None) -> str:
+    walls = ", ".join(f"{k / 1000:g} kN/m & {b:g} N s/m" for k, b in suite.walls)
+    lines = [f"# Leaderboard: suite `{suite_name}`", "",
+             f"Walls (one noise seed each): {walls}. Every run {suite.duration_s:g} s; scored "
+             f"{suite.window_s[0]:g}-{suite.window_s[1]:g} s after the first contact switch, "
+             "on the true contact force."
+             + (f" Wall time of the suite: {wall_s / 60:.1f} min." if wall_s else ""), "",
+             "## Overall", "",
+             "| rank | contender | mean task rank | runs losing contact | runs failed "
+             "| median force RMSE (N) |", "|---|---|---|---|---|---|"]
+    for e in sorted([e for e in board if e["task"] == "all"], key=lambda e: e["rank"]):
+        lines.append(f"| {e['rank']} | {e['contender']} | {_fmt(e['mean_rank'])} | "
+                     f"{e['runs_losing_contact']}/{e['runs']} | {e['runs_failed']} | "
+                     f"{_fmt(e['force_rmse_n_median'])} |")
+    for task in suite.tasks:
+        lines += ["", f"## {task}: {TASKS[task][0]}", "",
+                  "| rank | contender | lost contact | force RMSE median / worst (N) | worst 5 s "
+                  "window (N) | overshoot median (%) | settling median (s) | unsettled steps "
+                  "| y max (mm) | phi max (mrad) | torque RMS (N m) |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|"]
+        for e in [e for e in board if e["task"] == task]:
+            lines.append(
+                f"| {e['rank']} | {e['contender']} | {e['runs_losing_contact']}/{e['runs']} "
+                f"| {_fmt(e['force_rmse_n_median'])} / {_fmt(e['force_rmse_n_worst'])} "
+                f"| {_fmt(e['worst_window_rmse_n_worst'])} | {_fmt(e['step_overshoot_pct_median'], 0)} "
+                f"| {_fmt(e['step_settling_s_median'])} | {_fmt(e['step_unsettled_worst'], 0)} "
+                f"| {_fmt(e['y_max_abs_error_mm_worst'])} | {_fmt(e['phi_max_abs_error_mrad_worst'], 1)} "
+                f"| {_fmt(e['torque_rms_nm_median'])} |")
+    return "\n".join(lines) + "\n"
+
+
+def task_figure(rows, contenders, task, path: Path):
+    """Force RMSE of every run of ``task``, per contender (log scale);
+    a red cross is a run that lost contact."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(1.2 * len(contenders) + 2, 3.6))
+    for i, contender in enumerate(contenders):
+        runs = [r for r in rows if r["contender"] == contender and r["task"] == task
+                and r.get("force_rmse_n") is not None]
+        for r in runs:
+            lost = r["status"] != "completed"
+            ax.scatter(i + 0.08 * (r["wall"] - len(runs) / 2), r["force_rmse_n"],
+                       marker="x" if lost else "o", color="tab:red" if lost else "tab:blue",
+                       s=22)
+    ax.set_yscale("log")
+    ax.set_xticks(range(len(contenders)), contenders, rotation=30, ha="right")
+    ax.set_ylabel("force RMSE (N)")
+    ax.set_title(f"{task}: {TASKS[task][0]} (x: lost contact)", fontsize=9)
+    ax.grid(True, axis="y", which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_html(text_md: str, figures, path: Path):
+    body = [f"<pre>{html.escape(text_md)}</pre>"]
+    for figure in figures:
+        data = base64.b64encode(figure.read_bytes()).decode()
+        body.append(f'<p><img alt="{figure.stem}" src="data:image/png;base64,{data}"></p>')
+    path.write_text("<!doctype html><html><head><meta charset='utf-8'><title>drake_contact "
+                    "leaderboard</title></head><body>" + "\n".join(body) + "</body></html>\n")
+
+
+@dc.dataclass
+class BenchmarkResult:
+    rows: list
+    board: list
+    wall_s: float
+    ran: int
+    skipped: int
+    workers: int
+    interrupted: bool
+
+
+def run_benchmark(out_dir, *, contenders=None, suite="standard", workers=None, scheduler=None,
+                  progress=None) -> BenchmarkResult:
+    """Runs the suite (the points not finished in ``out_dir`` before) and
+    writes the leaderboard."""
+    if suite not in SUITES:
+        raise ScenarioError(f"--suite = {suite} is unknown: choose one of {', '.join(SUITES)}")
+    spec = SUITES[suite]
+    names = contender_names(contenders)
+    out = Path(out_dir)
+    runs_dir = out / "runs"
+    runs = plan(names, spec)
+    scenarios = {name: contender_scenario(name) for name in names}
+    todo = [r for r in runs if finished_metrics(runs_dir / r.path) is None]
+    start = time.perf_counter()
+    batch = run_points([(r.path, scenarios[r.contender], r.overrides(spec), r.seed,
+                         str(runs_dir / r.path), False) for r in todo],
+                       workers=workers, scheduler=scheduler, progress=progress)
+    wall = time.perf_counter() - start
+    rows = [score_run(r, runs_dir / r.path, spec) for r in runs]
+    board = aggregate(rows, names, spec.tasks)
+    _write_csv(rows, out / "runs.csv", ["contender", "task", "wall", "stiffness_n_per_m",
+                                         "damping_n_s_per_m", "seed", "status", "message"])
+    _write_csv(board, out / "leaderboard.csv", ["rank", "contender", "task", "runs",
+                                                 "runs_losing_contact", "runs_failed",
+                                                 "mean_rank", "force_rmse_n_median"])
+    text = markdown(board, suite, spec, wall_s=wall if todo and not batch.interrupted else None)
+    (out / "leaderboard.md").write_text(text)
+    figures = out / "figures"
+    figures.mkdir(exist_ok=True)
+    paths = []
+    for task in spec.tasks:
+        paths.append(figures / f"{task}.png")
+        task_figure(rows, names, task, paths[-1])
+    write_html(text, paths, out / "leaderboard.html")
+    (out / "benchmark.yaml").write_text(yaml.safe_dump(
+        {"suite": suite, "contenders": {n: scenarios[n] for n in names},
+         "tasks": {t: TASKS[t][1] for t in spec.tasks},
+         "walls": [list(w) for w in spec.walls]}, sort_keys=False))
+    return BenchmarkResult(rows, board, wall, ran=len(batch.timings),
+                           skipped=len(runs) - len(todo), workers=batch.workers,
+                           interrupted=batch.interrupted)
