@@ -1,4 +1,4 @@
-"""Plug-in controllers: any installed package can add one.
+"""Plug-in controllers and identifiers: any installed package can add one.
 
 A controller is a Drake System. A package makes one available by naming a
 *factory* in its ``pyproject.toml``::
@@ -22,9 +22,17 @@ tells contact from the filtered force for the force reference, the
 identifiers and the metrics. Everything a controller needs that evolves in
 time must live in its Context (discrete state): runs are repeatable.
 
+Identifiers register under ``drake_contact.identifiers`` the same way
+(the built-ins ``rls`` and ``nn`` too); a scenario's ``identifiers`` entry
+names one by ``kind`` and configures it by ``options``. An identifier reads
+measured signals and ``contact_info`` by name and outputs ``impedance``
+(3: [M_e, B_e, K_e]), logged as ``impedance_<name>`` and scored against
+the true wall; an output ``force_estimate`` (1) is logged too.
+
 A plug-in that cannot be found, raises while being built, has an input the
-station does not provide or lacks ``joint_torque_commanded`` is refused with
-a :class:`~drake_contact.errors.ScenarioError` naming it (the CLI: one line,
+station does not provide or lacks ``joint_torque_commanded`` (an
+identifier: ``impedance``) is refused with a
+:class:`~drake_contact.errors.ScenarioError` naming it (the CLI: one line,
 exit status 2).
 """
 
@@ -37,8 +45,9 @@ from pydrake.systems.framework import BasicVector, LeafSystem, PortDataType, Sys
 from drake_contact.errors import ScenarioError
 from drake_contact.plant.arm import DeclareSampledUpdate, is_sample_time
 
-#: Entry-point group of controller factories.
+#: Entry-point groups of controller and identifier factories.
 CONTROLLER_GROUP = "drake_contact.controllers"
+IDENTIFIER_GROUP = "drake_contact.identifiers"
 
 #: Input ports a controller may declare, by name: (size, meaning). The
 #: station connects each one the controller has.
@@ -63,9 +72,27 @@ CONTROLLER_REQUIRED_OUTPUTS = {
 }
 
 
+#: Input ports an identifier may declare (besides :data:`CONTROLLER_INPUTS`'
+#: measured signals), and the outputs it must / may have.
+IDENTIFIER_EXTRA_INPUTS = {
+    "contact_info": (4, "[time of the first contact switch (s) or -1, x, y, phi at the "
+                        "switch]: the controller's or the station's detector's"),
+    "tip_velocity_raw": (3, "tip velocity by unfiltered differences (m/s, rad/s)"),
+    "tip_acceleration_raw": (3, "tip acceleration by unfiltered differences"),
+}
+IDENTIFIER_REQUIRED_OUTPUTS = {
+    "impedance": (3, "the estimate [M_e, B_e, K_e] (kg, N s/m, N/m)"),
+}
+
+
 def installed_controllers() -> dict:
     """{name: entry point} of every controller installed (built-ins too)."""
     return {ep.name: ep for ep in entry_points(group=CONTROLLER_GROUP)}
+
+
+def installed_identifiers() -> dict:
+    """{kind: entry point} of every identifier installed (built-ins too)."""
+    return {ep.name: ep for ep in entry_points(group=IDENTIFIER_GROUP)}
 
 
 def _one_line(e: Exception) -> str:
@@ -73,17 +100,11 @@ def _one_line(e: Exception) -> str:
     return f"{type(e).__name__}: {text[0]}" if text else type(e).__name__
 
 
-def MakeController(name: str, options: dict, *, prefix="controller") -> System:
-    """Builds the installed controller ``name`` from ``options`` and checks
-    its ports against :data:`CONTROLLER_INPUTS` and
-    :data:`CONTROLLER_REQUIRED_OUTPUTS`. Raises ScenarioError naming the
-    plug-in if it is not installed, fails to load or build, or does not fit
-    the station."""
-    found = installed_controllers()
+def _build(found, kind, name, options, field):
     if name not in found:
-        raise ScenarioError(f"{prefix}.name = '{name}' is not an installed controller: "
+        raise ScenarioError(f"{field} = '{name}' is not an installed {kind}: "
                             f"choose one of {', '.join(sorted(found))}")
-    where = f"controller '{name}' ({found[name].value})"
+    where = f"{kind} '{name}' ({found[name].value})"
     try:
         factory = found[name].load()
     except Exception as e:  # a broken plug-in must not take the CLI down
@@ -97,24 +118,52 @@ def MakeController(name: str, options: dict, *, prefix="controller") -> System:
     if not isinstance(system, System):
         raise ScenarioError(f"{where}: its factory returned a {type(system).__name__}, "
                             "not a Drake System")
+    return system, where
+
+
+def MakeController(name: str, options: dict, *, prefix="controller") -> System:
+    """Builds the installed controller ``name`` from ``options`` and checks
+    its ports against :data:`CONTROLLER_INPUTS` and
+    :data:`CONTROLLER_REQUIRED_OUTPUTS`. Raises ScenarioError naming the
+    plug-in if it is not installed, fails to load or build, or does not fit
+    the station."""
+    system, where = _build(installed_controllers(), "controller", name, options,
+                           f"{prefix}.name")
     check_controller_ports(system, where)
+    return system
+
+
+def MakeIdentifier(kind: str, options: dict, *, prefix="identifiers[0]") -> System:
+    """Builds the installed identifier ``kind`` from ``options``; its inputs
+    must be measured signals (:data:`CONTROLLER_INPUTS` but the ground truth,
+    f_d and estimates) or :data:`IDENTIFIER_EXTRA_INPUTS`, and it must
+    output ``impedance`` (3). Raises ScenarioError naming it otherwise."""
+    system, where = _build(installed_identifiers(), "identifier", kind, options,
+                           f"{prefix}.kind")
+    allowed = {k: v for k, v in CONTROLLER_INPUTS.items()
+               if k not in ("plant_state", "force_desired", "impedance_estimate")}
+    _check_ports(system, where, allowed | IDENTIFIER_EXTRA_INPUTS, IDENTIFIER_REQUIRED_OUTPUTS)
     return system
 
 
 def check_controller_ports(system: System, where: str):
     """Raises ScenarioError unless every input of ``system`` is one the
     station provides, at its size, and its required outputs exist."""
+    _check_ports(system, where, CONTROLLER_INPUTS, CONTROLLER_REQUIRED_OUTPUTS)
+
+
+def _check_ports(system: System, where: str, inputs: dict, outputs: dict):
     for i in range(system.num_input_ports()):
         port = system.get_input_port(i)
         name = port.get_name()
-        if name not in CONTROLLER_INPUTS:
+        if name not in inputs:
             raise ScenarioError(
                 f"{where}: input port '{name}' is not a station signal: the station provides "
-                f"{', '.join(CONTROLLER_INPUTS)}")
-        size = CONTROLLER_INPUTS[name][0]
+                f"{', '.join(inputs)}")
+        size = inputs[name][0]
         if port.get_data_type() != PortDataType.kVectorValued or port.size() != size:
             raise ScenarioError(f"{where}: input port '{name}' must be a vector of size {size}")
-    for name, (size, meaning) in CONTROLLER_REQUIRED_OUTPUTS.items():
+    for name, (size, meaning) in outputs.items():
         if not system.HasOutputPort(name):
             raise ScenarioError(f"{where} has no output port '{name}' ({size}: {meaning})")
         port = system.GetOutputPort(name)

@@ -29,6 +29,7 @@ from drake_contact.control.nn_compensator import NnCompensatorConfig
 from drake_contact.plant.joint_physics import (
     THESIS_TORQUE_LIMITS, EncoderConfig, JointFrictionConfig)
 from drake_contact.control.push_controller import PushConfig
+from drake_contact.options import YAML12_FLOAT as _YAML12_FLOAT, check_schema as _check_schema
 from drake_contact.plugins import installed_controllers
 from drake_contact.resources import bundled_scenario_names, scenarios_dir
 
@@ -38,11 +39,6 @@ class _Loader(yaml.SafeLoader):
     ``yaml_load_typed`` does."""
 
 
-_YAML12_FLOAT = re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
-                   |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
-                   |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
-                   |[-+]?\.(?:inf|Inf|INF)
-                   |\.(?:nan|NaN|NAN))$""", re.X)
 _Loader.add_implicit_resolver("tag:yaml.org,2002:float", _YAML12_FLOAT, list("-+0123456789."))
 
 
@@ -322,6 +318,9 @@ def scenario_from_data(data: dict, *, source="scenario") -> Scenario:
     # they bypass the typed load and are checked by _check_options.
     controller = data.get("controller")
     options = controller.pop("options", {}) if isinstance(controller, dict) else {}
+    identifiers = data.get("identifiers") or []
+    identifier_options = [entry.pop("options", {}) if isinstance(entry, dict) else {}
+                          for entry in identifiers]
     try:
         scenario = yaml_load_typed(schema=Scenario, data=yaml.safe_dump(data))
     except (RuntimeError, ValueError, TypeError) as e:
@@ -331,6 +330,11 @@ def scenario_from_data(data: dict, *, source="scenario") -> Scenario:
     scenario.controller.options = options
     if isinstance(options, dict):
         controller["options"] = options  # the caller's mapping, unchanged
+    for i, (entry, config) in enumerate(zip(identifiers, scenario.identifiers)):
+        config.options = identifier_options[i] or {}
+        if identifier_options[i]:
+            entry["options"] = identifier_options[i]
+        _check_options(config.options, f"identifiers[{i}].options")
     scenario.validate()
     return scenario
 
@@ -338,13 +342,19 @@ def scenario_from_data(data: dict, *, source="scenario") -> Scenario:
 def dump_scenario(scenario: Scenario) -> str:
     """The fully resolved scenario as YAML (what a run writes)."""
     options = scenario.controller.options
-    if not options:
+    identifier_options = [config.options for config in scenario.identifiers]
+    if not options and not any(identifier_options):
         return yaml_dump_typed(scenario)
     # Drake's typed dump has no free-form mapping: dump without the options,
     # then put them back in place.
-    bare = dc.replace(scenario, controller=dc.replace(scenario.controller, options={}))
+    bare = dc.replace(scenario, controller=dc.replace(scenario.controller, options={}),
+                      identifiers=[dc.replace(c, options={}) for c in scenario.identifiers])
     data = _yaml_load(yaml_dump_typed(bare))
-    data["controller"]["options"] = options
+    if options:
+        data["controller"]["options"] = options
+    for entry, extra in zip(data.get("identifiers") or [], identifier_options):
+        if extra:
+            entry["options"] = extra
     return yaml.safe_dump(data, sort_keys=False)
 
 
@@ -364,51 +374,3 @@ def _apply_override(data: dict, item: str):
             raise ScenarioError(f"--set '{item}': '{part}' is a value, not a section")
         node = child
     node[parts[-1]] = value
-
-
-def check_schema(schema, data, prefix):
-    """Checks a plain mapping against the dataclass ``schema``: every key
-    known, every value of its field's type (a YAML 1.1 float string becomes
-    a float in ``data``); raises ScenarioError naming ``prefix + key``."""
-    _check_schema(schema, data, prefix)
-
-
-def _check_schema(schema, data, prefix):
-    """Every key known, every value of the field's type; names the field."""
-    if not isinstance(data, dict):
-        raise ScenarioError(f"{prefix.rstrip('.') or 'scenario'} must be a mapping of keys, "
-                            f"got {data!r}")
-    hints = typing.get_type_hints(schema)
-    for key, value in data.items():
-        name = f"{prefix}{key}"
-        if key not in hints:
-            known = ", ".join(f.name for f in dc.fields(schema))
-            raise ScenarioError(f"{name} is not a scenario key: known keys here are {known}")
-        data[key] = _check_type(hints[key], value, name)
-
-
-def _check_type(hint, value, name):
-    """Returns ``value`` (a YAML 1.1 float string as a float) once it is
-    of the field's type; raises ScenarioError naming the field otherwise."""
-    if dc.is_dataclass(hint):
-        _check_schema(hint, value, prefix=f"{name}.")
-        return value
-    origin = typing.get_origin(hint)
-    if origin is list:
-        (item_hint,) = typing.get_args(hint)
-        if not isinstance(value, list):
-            raise ScenarioError(f"{name} = {value!r} must be a list")
-        return [_check_type(item_hint, item, f"{name}[{i}]") for i, item in enumerate(value)]
-    if hint is float and isinstance(value, str) and _YAML12_FLOAT.match(value):
-        return float(value.replace("_", ""))
-    ok = {
-        float: isinstance(value, (int, float)) and not isinstance(value, bool),
-        int: isinstance(value, int) and not isinstance(value, bool),
-        bool: isinstance(value, bool),
-        str: isinstance(value, str),
-    }.get(hint, True)
-    if not ok:
-        kind = {float: "a number", int: "a whole number", bool: "true or false",
-                str: "a string"}[hint]
-        raise ScenarioError(f"{name} = {value!r} must be {kind}")
-    return value

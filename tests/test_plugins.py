@@ -87,6 +87,40 @@ BROKEN = {
 }
 
 
+IDENTIFIERS = {
+    "ratio": """
+        class Plugin(LeafSystem):  # K_e = (f - 5 N) / (x - x at the 5 N switch)
+            def __init__(self, floor):
+                super().__init__()
+                self.DeclareVectorInputPort("force", 1)
+                self.DeclareVectorInputPort("tip_pose", 3)
+                self.DeclareVectorInputPort("contact_info", 4)
+                state = self.DeclareDiscreteState(3)
+                self.DeclarePeriodicDiscreteUpdateEvent(1e-3, 0.0, self.update)
+                self.DeclareStateOutputPort("impedance", state)
+                self.floor = floor
+            def update(self, context, state):
+                info = self.GetInputPort("contact_info").Eval(context)
+                if info[0] < 0:
+                    return
+                dx = self.GetInputPort("tip_pose").Eval(context)[0] - info[1]
+                f = self.GetInputPort("force").Eval(context)[0]
+                state.set_value([0.0, 0.0, (f - 5.0) / max(dx, self.floor)])
+        def make(options):
+            return Plugin(options.get("floor", 1e-4))
+        """,
+    "no_impedance": """
+        class Plugin(LeafSystem):
+            def __init__(self):
+                super().__init__()
+                self.DeclareVectorInputPort("force", 1)
+                self.DeclareVectorOutputPort("stiffness", 1, lambda c, o: o.SetZero())
+        def make(options):
+            return Plugin()
+        """,
+}
+
+
 @pytest.fixture
 def broken_plugins(tmp_path):
     """A package of broken controllers, installed as pip would (a
@@ -100,6 +134,11 @@ def broken_plugins(tmp_path):
         (package / f"{name}.py").write_text(
             "from pydrake.systems.framework import LeafSystem\n" + textwrap.dedent(source))
         lines.append(f"{name} = broken_plugins.{name}:make")
+    lines.append("[drake_contact.identifiers]")
+    for name, source in IDENTIFIERS.items():
+        (package / f"id_{name}.py").write_text(
+            "from pydrake.systems.framework import LeafSystem\n" + textwrap.dedent(source))
+        lines.append(f"{name} = broken_plugins.id_{name}:make")
     info = site / "broken_plugins-1.0.dist-info"
     info.mkdir()
     (info / "METADATA").write_text("Metadata-Version: 2.1\nName: broken_plugins\nVersion: 1.0\n")
@@ -136,6 +175,33 @@ def test_the_cli_refuses_a_plugin_without_joint_torque_with_exit_2(broken_plugin
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in result.stderr
     assert "controller 'no_torque'" in lines[0] and "'joint_torque_commanded'" in lines[0]
+
+
+def test_a_plugin_identifier_runs_beside_the_builtins_and_is_scored(broken_plugins):
+    from drake_contact import simulate_scenario
+    scenario = load_scenario("identify_styrofoam", [
+        "identifiers=[{name: ratio, kind: ratio, options: {floor: 2.0e-4}}, {name: rls}]"],
+        duration=12.0)
+    assert "floor: 0.0002" in dump_scenario(scenario)
+    result = simulate_scenario(scenario)
+    assert result.status == "completed"
+    assert {"impedance_ratio", "impedance_rls"} <= set(result.log)
+    # Scored against the true wall like the built-ins: the force and the
+    # displacement since the switch, within a few % of K_e once settled.
+    k = result.metrics["identified_impedance_ratio"]["stiffness"]
+    assert abs(k / scenario.environment.stiffness - 1) < 0.1
+
+
+def test_a_plugin_identifier_without_impedance_is_refused(broken_plugins):
+    scenario = load_scenario("identify_styrofoam",
+                             ["identifiers=[{name: bad, kind: no_impedance}]"])
+    with pytest.raises(ScenarioError, match=r"identifier 'no_impedance' \(broken_plugins."
+                                            r"id_no_impedance:make\) has no output port "
+                                            r"'impedance'"):
+        MakeContactDiagram(scenario)
+    with pytest.raises(ScenarioError, match=r"identifiers\[0\].kind = 'ols' is unknown: "
+                                            r"choose one of .*nn, .*ratio, .*rls"):
+        load_scenario("identify_styrofoam", ["identifiers=[{name: a, kind: ols}]"])
 
 
 def test_an_unknown_controller_lists_the_installed_ones():

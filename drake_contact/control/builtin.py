@@ -12,32 +12,14 @@ for ``nn``), so the thesis's scenarios keep their YAML.
 import dataclasses as dc
 
 import numpy as np
-import yaml
-from pydrake.common.yaml import yaml_load_typed
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import Adder, ConstantVectorSource, MatrixGain
 
 from drake_contact.control.hybrid_controller import HybridController, HybridControllerConfig
 from drake_contact.control.nn_compensator import NnCompensator, NnCompensatorConfig
 from drake_contact.control.push_controller import ConstantForcePushController, PushConfig
-from drake_contact.errors import ScenarioError
 from drake_contact.plant.arm import MakeArmModel
-from drake_contact.scenario import check_schema
-
-
-def config_from_options(schema, options: dict, prefix: str):
-    """``schema`` (a dataclass) from a plain mapping: every key known and of
-    its field's type (ScenarioError naming ``prefix.key`` otherwise), then
-    validated with ``prefix``. Fields left out keep their defaults."""
-    data = dict(options)
-    check_schema(schema, data, prefix=f"{prefix}.")
-    try:
-        config = yaml_load_typed(schema=schema, data=yaml.safe_dump(data))
-    except (RuntimeError, ValueError, TypeError) as e:
-        raise ScenarioError(f"{prefix}: {str(e).splitlines()[0]}") from None
-    if hasattr(config, "validate"):
-        config.validate(prefix)
-    return config
+from drake_contact.options import config_from_options
 
 
 def push(options: dict):

@@ -43,7 +43,10 @@ from drake_contact.plant.arm import CONTROL_PERIOD
 from drake_contact.sensing.filters import butterworth_digital, digital_filter_system
 from drake_contact.identification.nn_identifier import NnIdentifier, NnIdentifierConfig
 from drake_contact.identification.rls_identifier import RlsConfig, RlsIdentifier
+from drake_contact.options import config_from_options
+from drake_contact.plugins import MakeIdentifier, installed_identifiers
 
+#: The built-in identifiers, configured by their own typed section.
 KINDS = ("rls", "nn")
 SIGNALS = ("filtered", "raw", "matched")
 _MEASURED_FIELDS = [field.name for field in dc.fields(MeasuredSignals)]
@@ -55,7 +58,8 @@ class IdentifierConfig:
 
     # Its name: logs impedance_<name>, metrics *_<name>.
     name: str = "rls"
-    # rls or nn.
+    # An installed identifier (drake_contact.plugins.installed_identifiers():
+    # the built-ins rls and nn, configured by the sections below, or a plug-in).
     kind: str = "rls"
     # Signals it reads: filtered (the thesis: 120 Hz force, 35 Hz velocity
     # and acceleration), raw (unfiltered force and differences, Fig 6.3) or
@@ -68,18 +72,36 @@ class IdentifierConfig:
     figures: list[str] = dc.field(default_factory=list)
     rls: RlsConfig = dc.field(default_factory=RlsConfig)
     nn: NnIdentifierConfig = dc.field(default_factory=NnIdentifierConfig)
+    # Options of a plug-in identifier (names to numbers, lists or strings),
+    # handed to its factory; the built-ins take their section above.
+    options: dict[str, float] = dc.field(default_factory=dict)
+
+    def factory_options(self, seed: int) -> dict:
+        """The options mapping the identifier's factory gets: the built-ins'
+        typed section (the network also its weights' ``seed``), else
+        ``options``."""
+        if self.kind == "rls":
+            return dc.asdict(self.rls)
+        if self.kind == "nn":
+            return dc.asdict(self.nn) | {"seed": seed}
+        return dict(self.options)
 
     def validate(self, prefix):
         if not self.name.isidentifier():
             raise ScenarioError(f"{prefix}.name = '{self.name}' is not a valid name: "
                                 "use letters, digits and underscores")
-        if self.kind not in KINDS:
+        installed = installed_identifiers()
+        if self.kind not in installed:
             raise ScenarioError(f"{prefix}.kind = '{self.kind}' is unknown: choose one of "
-                                f"{', '.join(KINDS)}")
+                                f"{', '.join(sorted(installed))}")
+        if self.kind in KINDS and self.options:
+            raise ScenarioError(f"{prefix}.options: the built-in '{self.kind}' is configured by "
+                                f"{prefix}.{self.kind}, not by options")
         if self.signals not in SIGNALS:
             raise ScenarioError(f"{prefix}.signals = '{self.signals}' is unknown: choose one of "
                                 f"{', '.join(SIGNALS)}")
-        getattr(self, self.kind).validate(f"{prefix}.{self.kind}")
+        if self.kind in KINDS:
+            getattr(self, self.kind).validate(f"{prefix}.{self.kind}")
         if len(self.figures) > 2 or not all(
                 all(part.isdigit() for part in str(f).split(".")) for f in self.figures):
             raise ScenarioError(f"{prefix}.figures = {self.figures} is out of range: at most 2 "
@@ -146,6 +168,20 @@ _SOURCES = {
 }
 
 
+def rls(options: dict):
+    """The built-in RLS identifier (registered as ``rls``); options: the
+    fields of :class:`RlsConfig`."""
+    return RlsIdentifier(config_from_options(RlsConfig, options, "identifiers.rls"))
+
+
+def nn(options: dict):
+    """The built-in neural identifier (registered as ``nn``); options: the
+    fields of :class:`NnIdentifierConfig` and ``seed`` (its initial weights)."""
+    options = dict(options)
+    seed = int(options.pop("seed", 0))
+    return NnIdentifier(config_from_options(NnIdentifierConfig, options, "identifiers.nn"), seed)
+
+
 def AddIdentifiers(builder: DiagramBuilder, scenario, *, name="identifiers"):
     """Adds every one of ``scenario.identifiers`` side by side, as the
     sub-diagram ``name``; returns it.
@@ -162,21 +198,23 @@ def AddIdentifiers(builder: DiagramBuilder, scenario, *, name="identifiers"):
         outputs = {}
         matched = None
         for index, config in enumerate(scenario.identifiers):
-            if config.kind == "rls":
-                system = RlsIdentifier(config.rls)
-            else:
-                system = NnIdentifier(config.nn, seed=seed * 1000 + index)
+            system = MakeIdentifier(config.kind, config.factory_options(seed * 1000 + index),
+                                    prefix=f"identifiers[{index}]")
             system = builder.AddNamedSystem(f"identifier_{config.name}", system)
             if config.signals == "matched":
                 matched = matched or _add_matched_signals(builder, scenario, inputs)
-                for port, output in matched.items():
-                    builder.Connect(output, system.GetInputPort(port))
-            else:
-                for port, source in _SOURCES[config.signals].items():
-                    inputs[source].append(system.GetInputPort(port))
-            inputs["contact_info"].append(system.GetInputPort("contact_info"))
+            for i in range(system.num_input_ports()):
+                port = system.get_input_port(i)
+                port_name = port.get_name()
+                if config.signals == "matched" and port_name in matched:
+                    builder.Connect(matched[port_name], port)
+                elif port_name in _SOURCES["filtered"]:
+                    inputs[_SOURCES.get(config.signals, _SOURCES["filtered"])[port_name]].append(
+                        port)
+                else:  # contact_info, or any other measured signal by its name
+                    inputs[port_name].append(port)
             outputs[f"impedance_{config.name}"] = system.GetOutputPort("impedance")
-            if config.kind == "nn":
+            if system.HasOutputPort("force_estimate"):
                 outputs[f"force_estimate_{config.name}"] = system.GetOutputPort("force_estimate")
         return {port: ports for port, ports in inputs.items() if ports} | outputs
     return AddSubdiagram(builder, name, build)

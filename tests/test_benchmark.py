@@ -1,0 +1,116 @@
+"""drake-contact benchmark: contenders, the ranking, and a quick suite end to
+end with the example plug-in (pip-installed by the README's test command)."""
+
+import csv
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from drake_contact import ScenarioError, load_scenario
+from drake_contact.app.benchmark import (
+    SCENARIO_CONTENDERS, SUITES, TASKS, Run, aggregate, contender_names, contender_scenario)
+from drake_contact.app.metrics import step_metrics
+
+
+def test_default_contenders_are_the_thesis_robust_and_installed_ones_but_push():
+    names = contender_names()
+    assert names[:len(SCENARIO_CONTENDERS)] == list(SCENARIO_CONTENDERS)
+    assert {"impedance", "admittance", "parallel_force", "jt_pi"} <= set(names)
+    assert "push" not in names
+    with pytest.raises(ScenarioError, match="--controllers: 'pid' is neither"):
+        contender_names("hybrid,pid")
+
+
+def test_a_contender_brings_its_controller_and_nothing_of_the_task():
+    data = contender_scenario("nn_robust")
+    assert data["controller"]["nn"]["leakage"] == 2.0
+    assert data["arm"]["motor_torque_scale"] == [1.0, 1.2, 1.0]  # the suite's plant
+    run = Run("nn_robust", "drift", 3, 12000.0, 150.0)
+    scenario = load_scenario(data, run.overrides(SUITES["standard"]), seed=run.seed)
+    assert scenario.environment.stiffness == 12000.0
+    assert scenario.environment.stiffness_drift_per_s == 0.01
+    assert scenario.simulation.seed == 3
+    assert scenario.force_reference.levels == [20.0, 10.0]
+    plugin = load_scenario(contender_scenario("admittance"))
+    assert plugin.controller.name == "admittance" and plugin.controller.options == {}
+    assert contender_scenario("adaptive_hybrid")["identifiers"]
+
+
+def _row(contender, task, rmse, status="completed"):
+    return {"contender": contender, "task": task, "status": status, "force_rmse_n": rmse}
+
+
+def test_a_contact_loss_ranks_below_any_rmse_and_the_overall_rank_is_the_mean():
+    rows = [_row("a", "hold", 0.1, "lost_contact"), _row("a", "hold", 0.1),
+            _row("b", "hold", 3.0), _row("b", "hold", 4.0),
+            _row("a", "square", 1.0), _row("a", "square", 1.0),
+            _row("b", "square", 2.0), _row("b", "square", 2.0)]
+    board = aggregate(rows, ["a", "b"], ["hold", "square"])
+    rank = {(e["contender"], e["task"]): e["rank"] for e in board}
+    assert rank[("b", "hold")] == 1 and rank[("a", "hold")] == 2
+    assert rank[("a", "square")] == 1
+    overall = {e["contender"]: e for e in board if e["task"] == "all"}
+    assert overall["a"]["mean_rank"] == overall["b"]["mean_rank"] == 1.5
+    assert overall["a"]["runs_losing_contact"] == 1
+    hold_b = next(e for e in board if e["contender"] == "b" and e["task"] == "hold")
+    assert hold_b["force_rmse_n_median"] == 3.5 and hold_b["force_rmse_n_worst"] == 4.0
+
+
+def test_step_metrics_of_a_first_order_response_by_hand():
+    t = np.arange(0, 10, 0.001)
+    desired = np.where(t % 5 < 2.5, 20.0, 10.0)
+    force = np.empty_like(t)
+    force[0] = 20.0
+    for i in range(1, len(t)):  # tau = 0.1 s: within 1 N of a 10 N step after 0.1 ln 10 s
+        force[i] = force[i - 1] + (desired[i] - force[i - 1]) * 0.001 / 0.1
+    force[5800] += 3.0  # 3 N past the 20 N level once, 0.8 s after the step up at 5 s
+    out = step_metrics({"t": t, "contact_force_true": force, "force_desired": desired}, t >= 1.0)
+    assert out["step_count"] == 3
+    assert out["step_overshoot_max_pct"] == pytest.approx(
+        100 * (force[5800] - 20.0) / 10.0)
+    assert out["step_overshoot_pct"] == 0.0  # the median of the three steps
+    assert out["step_settling_s"] == pytest.approx(0.1 * np.log(10), abs=0.002)
+    assert out["step_unsettled"] == 0
+
+
+def test_quick_suite_ranks_the_example_plugin_beside_the_thesis_controller(tmp_path):
+    out = tmp_path / "bench"
+    result = subprocess.run(
+        [sys.executable, "-m", "drake_contact", "benchmark", "--suite", "quick", "--out",
+         str(out), "--controllers", "hybrid,jt_pi", "--workers", "2"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    with (out / "leaderboard.csv").open() as f:
+        board = list(csv.DictReader(f))
+    quick = SUITES["quick"]
+    assert {(e["contender"], e["task"]) for e in board} == {
+        (c, t) for c in ("hybrid", "jt_pi") for t in (*quick.tasks, "all")}
+    with (out / "runs.csv").open() as f:
+        runs = list(csv.DictReader(f))
+    assert len(runs) == 2 * len(quick.tasks) * len(quick.walls)
+    assert all(r["status"] in ("completed", "lost_contact") for r in runs)
+    assert all(float(r["force_rmse_n"]) > 0 for r in runs)
+    text = (out / "leaderboard.md").read_text()
+    assert "| jt_pi |" in text and f"## square: {TASKS['square'][0]}" in text
+    html = (out / "leaderboard.html").read_text()
+    assert html.count("data:image/png;base64,") == len(quick.tasks)
+    # Rerunning the command runs nothing again.
+    again = subprocess.run(
+        [sys.executable, "-m", "drake_contact", "benchmark", "--suite", "quick", "--out",
+         str(out), "--controllers", "hybrid,jt_pi"], cwd=tmp_path, capture_output=True,
+        text=True, timeout=300)
+    assert again.returncode == 0 and "(0 now, 8 from before)" in again.stdout
+
+
+def test_bad_benchmark_input_exits_2_in_one_line(tmp_path):
+    for args, message in [(["--controllers", "pid"], "--controllers: 'pid' is neither"),
+                          (["--suite", "huge"], "--suite = huge is unknown"),
+                          (["--workers", "0"], "--workers = 0 is out of range")]:
+        result = subprocess.run(
+            [sys.executable, "-m", "drake_contact", "benchmark", "--out", str(tmp_path / "o"),
+             *args], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+        assert result.returncode == 2 and message in result.stderr
+        assert len(result.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "o").exists()
