@@ -79,7 +79,8 @@ def test_quick_suite_ranks_the_example_plugin_beside_the_thesis_controller(tmp_p
     out = tmp_path / "bench"
     result = subprocess.run(
         [sys.executable, "-m", "drake_contact", "benchmark", "--suite", "quick", "--out",
-         str(out), "--controllers", "hybrid,jt_pi", "--workers", "2"],
+         str(out), "--controllers", "hybrid,jt_pi", "--identifiers", "rls,rls_matched",
+         "--workers", "2"],
         cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr
     with (out / "leaderboard.csv").open() as f:
@@ -96,17 +97,25 @@ def test_quick_suite_ranks_the_example_plugin_beside_the_thesis_controller(tmp_p
     assert "| jt_pi |" in text and f"## square: {TASKS['square'][0]}" in text
     html = (out / "leaderboard.html").read_text()
     assert html.count("data:image/png;base64,") == len(quick.tasks)
+    # The identifiers: one run per task and wall, both side by side, scored
+    # on the true wall; the matched RLS (ours) settles within 5 % everywhere.
+    with (out / "identifier_leaderboard.csv").open() as f:
+        ids = {(e["identifier"], e["task"]): e for e in csv.DictReader(f)}
+    assert ids[("rls_matched", "all")]["runs_settled_5pct"] == "4"
+    assert float(ids[("rls_matched", "all")]["stiffness_abs_error_pct_median"]) < 5.0
+    assert "# Identifiers" in text
     # Rerunning the command runs nothing again.
     again = subprocess.run(
         [sys.executable, "-m", "drake_contact", "benchmark", "--suite", "quick", "--out",
-         str(out), "--controllers", "hybrid,jt_pi"], cwd=tmp_path, capture_output=True,
-        text=True, timeout=300)
-    assert again.returncode == 0 and "(0 now, 8 from before)" in again.stdout
+         str(out), "--controllers", "hybrid,jt_pi", "--identifiers", "rls,rls_matched"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0 and "12 runs (0 now, 12 from before)" in again.stdout
 
 
 def test_bad_benchmark_input_exits_2_in_one_line(tmp_path):
     for args, message in [(["--controllers", "pid"], "--controllers: 'pid' is neither"),
                           (["--suite", "huge"], "--suite = huge is unknown"),
+                          (["--identifiers", "ols"], "--identifiers: 'ols' is not an"),
                           (["--workers", "0"], "--workers = 0 is out of range")]:
         result = subprocess.run(
             [sys.executable, "-m", "drake_contact", "benchmark", "--out", str(tmp_path / "o"),

@@ -1,8 +1,8 @@
 """Every controller on the same force-control tasks, on walls none was tuned
 on, ranked: ``drake-contact benchmark``.
 
-    drake-contact benchmark --out DIR [--controllers A,B,...] [--suite quick|standard]
-                            [--workers N | --scheduler ADDRESS]
+    drake-contact benchmark --out DIR [--controllers A,B,...] [--identifiers all|A,B,...]
+                            [--suite quick|standard] [--workers N | --scheduler ADDRESS]
 
 A **contender** is a controller with one set of options for the whole
 suite: an installed controller by name (its default options), or one of the
@@ -32,6 +32,14 @@ contact, then by its median force RMSE; its overall rank is by its mean
 rank over the tasks. Writes ``runs.csv`` (every run), ``leaderboard.csv``
 (per contender and task, with the ranks), ``leaderboard.md`` and
 ``leaderboard.html`` (the tables and one figure per task), ``figures/``.
+
+With ``--identifiers``, the identifiers (:func:`identifier_entries`: the
+thesis's and ours from ``identify_styrofoam``, and every installed plug-in
+kind) also run, all side by side in one run per task and wall under the
+thesis's identification controller, scored on K_e at the end and 1 s after
+contact, B_e, M_e and the time to settle within 5 % of K_e
+(``identifiers.csv``, ``identifier_leaderboard.csv``, a section of
+``leaderboard.md``).
 """
 
 import base64
@@ -47,7 +55,7 @@ import yaml
 
 from drake_contact.app.sweep import finished_metrics, run_points
 from drake_contact.errors import ScenarioError
-from drake_contact.plugins import installed_controllers
+from drake_contact.plugins import installed_controllers, installed_identifiers
 from drake_contact.resources import scenarios_dir
 from drake_contact.scenario import yaml_load
 
@@ -181,6 +189,166 @@ class Run:
             f"simulation.duration={suite.duration_s}",
             f"scoring.window_start_s={suite.window_s[0]}",
             f"scoring.window_end_s={suite.window_s[1]}"]
+
+
+#: The identifiers' contenders: the thesis's and ours as configured in this
+#: scenario's ``identifiers`` list, and every installed plug-in kind (with
+#: its default options); all run side by side, on every task and wall, under
+#: :data:`IDENTIFIER_CONTROLLER`, the controller of the thesis's identification runs.
+IDENTIFIER_SCENARIO = "identify_styrofoam"
+IDENTIFIER_CONTROLLER = "hybrid_pi"
+#: A K_e estimate has settled once it stays within this of the truth.
+IDENTIFIER_SETTLE = 0.05
+
+
+def identifier_entries() -> dict:
+    """{name: the scenario's identifiers entry} of every identifier contender."""
+    own = yaml_load((scenarios_dir() / f"{IDENTIFIER_SCENARIO}.yaml").read_text())
+    entries = {entry["name"]: entry for entry in own["identifiers"]}
+    for kind in sorted(installed_identifiers()):
+        if kind not in ("rls", "nn") and kind not in entries:
+            entries[kind] = {"name": kind, "kind": kind}
+    for entry in entries.values():
+        entry.pop("figures", None)
+    return entries
+
+
+def identifier_names(requested) -> list:
+    """``requested`` ('all' or comma-separated names), checked; [] if None."""
+    if not requested:
+        return []
+    known = list(identifier_entries())
+    if requested.strip() == "all":
+        return known
+    names = [name.strip() for name in requested.split(",") if name.strip()]
+    for name in names:
+        if name not in known:
+            raise ScenarioError(f"--identifiers: '{name}' is not an identifier contender: "
+                                f"choose from {', '.join(known)}, or all")
+    return names
+
+
+@dc.dataclass(frozen=True)
+class IdentifierRun:
+    task: str
+    wall: int
+    stiffness: float
+    damping: float
+
+    @property
+    def seed(self) -> int:
+        return self.wall
+
+    @property
+    def path(self) -> str:
+        return f"identifiers/{self.task}/wall{self.wall}_K{self.stiffness:g}_B{self.damping:g}"
+
+    def overrides(self, suite: Suite) -> list:
+        return Run(IDENTIFIER_CONTROLLER, self.task, self.wall, self.stiffness,
+                   self.damping).overrides(suite)
+
+
+def identifier_scenario(names) -> dict:
+    data = contender_scenario(IDENTIFIER_CONTROLLER)
+    entries = identifier_entries()
+    data["identifiers"] = [entries[name] for name in names]
+    return data
+
+
+def score_identifiers(run: IdentifierRun, run_dir: Path, names) -> list:
+    """One identifiers.csv row per identifier of a run."""
+    metrics = finished_metrics(run_dir) or {}
+    rows = []
+    for name in names:
+        row = {"identifier": name, "task": run.task, "wall": run.wall,
+               "stiffness_n_per_m": run.stiffness, "damping_n_s_per_m": run.damping,
+               "seed": run.seed, "status": metrics.get("status", "failed")}
+        error = metrics.get(f"identification_error_{name}") or {}
+        early = metrics.get(f"identification_error_1s_{name}") or {}
+        found = metrics.get(f"identified_impedance_{name}") or {}
+        for key, value in (("stiffness_error_pct", error.get("stiffness")),
+                           ("stiffness_error_1s_pct", early.get("stiffness")),
+                           ("damping_error_pct", error.get("damping"))):
+            row[key] = None if value is None else 100 * value
+        row["mass_kg"] = found.get("mass")
+        row["settling_s"] = metrics.get(f"identification_time_{name}_s")
+        rows.append(row)
+    return rows
+
+
+def aggregate_identifiers(rows, names, tasks) -> list:
+    """Per identifier and task: median and worst |K_e error| at the end and
+    1 s after contact, median |B_e error|, median M_e, runs whose K_e
+    settled within 5 %, median settling time; ranked by the runs that did
+    not settle, then the median |K_e error|; then one overall row each."""
+    board = []
+    for task in tasks:
+        entries = []
+        for name in names:
+            runs = [r for r in rows if r["identifier"] == name and r["task"] == task]
+            k = [abs(r["stiffness_error_pct"]) for r in runs
+                 if r["stiffness_error_pct"] is not None]
+            k1 = [abs(r["stiffness_error_1s_pct"]) for r in runs
+                  if r["stiffness_error_1s_pct"] is not None]
+            settled = [r["settling_s"] for r in runs if r["settling_s"] is not None]
+            entries.append({
+                "identifier": name, "task": task, "runs": len(runs),
+                "runs_settled_5pct": len(settled),
+                "stiffness_abs_error_pct_median": _median(k),
+                "stiffness_abs_error_pct_worst": _max(k),
+                "stiffness_abs_error_1s_pct_median": _median(k1),
+                "damping_abs_error_pct_median": _median(
+                    [abs(r["damping_error_pct"]) for r in runs
+                     if r["damping_error_pct"] is not None]),
+                "mass_kg_median": _median([r["mass_kg"] for r in runs]),
+                "settling_s_median": _median(settled)})
+        order = sorted(entries, key=lambda e: (e["runs"] - e["runs_settled_5pct"],
+                                               e["stiffness_abs_error_pct_median"]
+                                               if e["stiffness_abs_error_pct_median"] is not None
+                                               else np.inf))
+        for rank, entry in enumerate(order, start=1):
+            entry["rank"] = rank
+        board += order
+    for name in names:
+        mine = [e for e in board if e["identifier"] == name]
+        board.append({"identifier": name, "task": "all",
+                      "mean_rank": float(np.mean([e["rank"] for e in mine])),
+                      "runs": sum(e["runs"] for e in mine),
+                      "runs_settled_5pct": sum(e["runs_settled_5pct"] for e in mine),
+                      "stiffness_abs_error_pct_median": _median(
+                          [abs(r["stiffness_error_pct"]) for r in rows
+                           if r["identifier"] == name and r["stiffness_error_pct"] is not None])})
+    overall = sorted([e for e in board if e["task"] == "all"], key=lambda e: e["mean_rank"])
+    for rank, entry in enumerate(overall, start=1):
+        entry["rank"] = rank
+    return board
+
+
+def identifier_markdown(board, tasks) -> str:
+    lines = ["", "# Identifiers", "",
+             f"All side by side in one run per task and wall, under `{IDENTIFIER_CONTROLLER}`; "
+             "true M_e is 0.01 kg. Ranked by the runs whose K_e estimate did not settle within "
+             "5 % of the truth, then by the median |K_e error| at the end.", "",
+             "| rank | identifier | mean task rank | K_e settled within 5 % | median abs K_e "
+             "error at the end (%) |", "|---|---|---|---|---|"]
+    for e in sorted([e for e in board if e["task"] == "all"], key=lambda e: e["rank"]):
+        lines.append(f"| {e['rank']} | {e['identifier']} | {_fmt(e['mean_rank'])} | "
+                     f"{e['runs_settled_5pct']}/{e['runs']} | "
+                     f"{_fmt(e['stiffness_abs_error_pct_median'])} |")
+    for task in tasks:
+        lines += ["", f"## identifiers, {task}: {TASKS[task][0]}", "",
+                  "| rank | identifier | K_e settled within 5 % | abs K_e error median / worst "
+                  "(%) | at 1 s (%) | abs B_e error (%) | M_e (kg) | settling (s) |",
+                  "|---|---|---|---|---|---|---|---|"]
+        for e in [e for e in board if e["task"] == task]:
+            lines.append(
+                f"| {e['rank']} | {e['identifier']} | {e['runs_settled_5pct']}/{e['runs']} | "
+                f"{_fmt(e['stiffness_abs_error_pct_median'])} / "
+                f"{_fmt(e['stiffness_abs_error_pct_worst'])} | "
+                f"{_fmt(e['stiffness_abs_error_1s_pct_median'])} | "
+                f"{_fmt(e['damping_abs_error_pct_median'], 0)} | {_fmt(e['mass_kg_median'], 3)} "
+                f"| {_fmt(e['settling_s_median'])} |")
+    return "\n".join(lines) + "\n"
 
 
 def plan(contenders, suite: Suite) -> list:
@@ -363,25 +531,34 @@ class BenchmarkResult:
     skipped: int
     workers: int
     interrupted: bool
+    identifier_board: list = dc.field(default_factory=list)
 
 
-def run_benchmark(out_dir, *, contenders=None, suite="standard", workers=None, scheduler=None,
-                  progress=None) -> BenchmarkResult:
+def run_benchmark(out_dir, *, contenders=None, identifiers=None, suite="standard", workers=None,
+                  scheduler=None, progress=None) -> BenchmarkResult:
     """Runs the suite (the points not finished in ``out_dir`` before) and
-    writes the leaderboard."""
+    writes the leaderboard; ``identifiers`` ('all' or names) adds the
+    identifiers' runs and board."""
     if suite not in SUITES:
         raise ScenarioError(f"--suite = {suite} is unknown: choose one of {', '.join(SUITES)}")
     spec = SUITES[suite]
     names = contender_names(contenders)
+    id_names = identifier_names(identifiers)
     out = Path(out_dir)
     runs_dir = out / "runs"
     runs = plan(names, spec)
     scenarios = {name: contender_scenario(name) for name in names}
-    todo = [r for r in runs if finished_metrics(runs_dir / r.path) is None]
+    id_runs = [IdentifierRun(task, i, k, b) for task in spec.tasks
+               for i, (k, b) in enumerate(spec.walls)] if id_names else []
+    points = [(r.path, scenarios[r.contender], r.overrides(spec), r.seed,
+               str(runs_dir / r.path), False) for r in runs]
+    if id_names:
+        id_scenario = identifier_scenario(id_names)
+        points += [(r.path, id_scenario, r.overrides(spec), r.seed, str(runs_dir / r.path),
+                    False) for r in id_runs]
+    todo = [p for p in points if finished_metrics(Path(p[4])) is None]
     start = time.perf_counter()
-    batch = run_points([(r.path, scenarios[r.contender], r.overrides(spec), r.seed,
-                         str(runs_dir / r.path), False) for r in todo],
-                       workers=workers, scheduler=scheduler, progress=progress)
+    batch = run_points(todo, workers=workers, scheduler=scheduler, progress=progress)
     wall = time.perf_counter() - start
     rows = [score_run(r, runs_dir / r.path, spec) for r in runs]
     board = aggregate(rows, names, spec.tasks)
@@ -391,6 +568,17 @@ def run_benchmark(out_dir, *, contenders=None, suite="standard", workers=None, s
                                                  "runs_losing_contact", "runs_failed",
                                                  "mean_rank", "force_rmse_n_median"])
     text = markdown(board, suite, spec, wall_s=wall if todo and not batch.interrupted else None)
+    id_board = []
+    if id_names:
+        id_rows = [row for r in id_runs for row in score_identifiers(r, runs_dir / r.path,
+                                                                      id_names)]
+        id_board = aggregate_identifiers(id_rows, id_names, spec.tasks)
+        _write_csv(id_rows, out / "identifiers.csv", ["identifier", "task", "wall",
+                                                       "stiffness_n_per_m", "damping_n_s_per_m",
+                                                       "seed", "status"])
+        _write_csv(id_board, out / "identifier_leaderboard.csv",
+                   ["rank", "identifier", "task", "runs", "runs_settled_5pct", "mean_rank"])
+        text += identifier_markdown(id_board, spec.tasks)
     (out / "leaderboard.md").write_text(text)
     figures = out / "figures"
     figures.mkdir(exist_ok=True)
@@ -404,5 +592,5 @@ def run_benchmark(out_dir, *, contenders=None, suite="standard", workers=None, s
          "tasks": {t: TASKS[t][1] for t in spec.tasks},
          "walls": [list(w) for w in spec.walls]}, sort_keys=False))
     return BenchmarkResult(rows, board, wall, ran=len(batch.timings),
-                           skipped=len(runs) - len(todo), workers=batch.workers,
-                           interrupted=batch.interrupted)
+                           skipped=len(points) - len(todo), workers=batch.workers,
+                           interrupted=batch.interrupted, identifier_board=id_board)

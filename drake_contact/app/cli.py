@@ -89,6 +89,9 @@ def _build_parser():
     benchmark.add_argument("--controllers", metavar="A,B,...",
                            help="contenders (default: the thesis's, the robust ones and every "
                                 "installed controller but the push harness)")
+    benchmark.add_argument("--identifiers", metavar="all|A,B,...",
+                           help="also benchmark identifiers, side by side under the thesis's "
+                                "identification controller (all: every one)")
     benchmark.add_argument("--suite", default="standard", help="quick or standard (default)")
     where = benchmark.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int,
@@ -201,7 +204,8 @@ def _cmd_sweep(args):
 
 
 def _cmd_benchmark(args):
-    from drake_contact.app.benchmark import SUITES, contender_names, run_benchmark
+    from drake_contact.app.benchmark import (
+        SUITES, contender_names, identifier_names, run_benchmark)
     from drake_contact.app.sweep import terminal_progress
     if args.workers is not None and args.workers < 1:
         raise ScenarioError(f"--workers = {args.workers} is out of range: must be >= 1")
@@ -209,18 +213,26 @@ def _cmd_benchmark(args):
         raise ScenarioError(f"--suite = {args.suite} is unknown: choose one of "
                             f"{', '.join(SUITES)}")
     contender_names(args.controllers)  # bad names: one line before any folder is made
+    identifier_names(args.identifiers)
     _check_out(args.out)
-    result = run_benchmark(args.out, contenders=args.controllers, suite=args.suite,
+    result = run_benchmark(args.out, contenders=args.controllers,
+                           identifiers=args.identifiers, suite=args.suite,
                            workers=args.workers, scheduler=args.scheduler,
                            progress=terminal_progress())
     overall = sorted((e for e in result.board if e["task"] == "all"), key=lambda e: e["rank"])
-    print(f"{len(result.rows)} runs ({result.ran} now, {result.skipped} from before) in "
+    print(f"{result.ran + result.skipped} runs ({result.ran} now, {result.skipped} from before) in "
           f"{result.wall_s:.0f} s on {result.workers} workers")
     for e in overall:
         print(f"{e['rank']:3d}. {e['contender']:18s} mean task rank {e['mean_rank']:.2f}, "
               f"lost contact in {e['runs_losing_contact']}/{e['runs']} runs, median force RMSE "
               + (f"{e['force_rmse_n_median']:.2f} N" if e['force_rmse_n_median'] is not None
                  else "-"))
+    for e in sorted((e for e in result.identifier_board if e["task"] == "all"),
+                    key=lambda e: e["rank"]):
+        print(f"{e['rank']:3d}. identifier {e['identifier']:14s} K_e within 5 % in "
+              f"{e['runs_settled_5pct']}/{e['runs']} runs, median |K_e error| "
+              + (f"{e['stiffness_abs_error_pct_median']:.2f} %"
+                 if e['stiffness_abs_error_pct_median'] is not None else "-"))
     print(f"wrote {args.out}/leaderboard.md, leaderboard.csv and leaderboard.html")
     return EXIT_INTERRUPTED if result.interrupted else 0
 
