@@ -27,6 +27,8 @@ from drake_contact.diagram import ContactStation, MakeContactDiagram, SeedNoise,
 from drake_contact.errors import ScenarioError, SimulationDiverged
 from drake_contact.measured import MeasuredSignals
 from drake_contact.plant.arm import ApplySampledUpdates, CalcSampledUpdate
+from drake_contact.plugins import (
+    ContactDetector, MakeController, MakeIdentifier, installed_controllers, installed_identifiers)
 from drake_contact.scenario import Scenario, dump_scenario, load_scenario
 
 __version__ = "0.1.0"
@@ -40,6 +42,9 @@ __all__ = [
     # Running
     "SeedNoise", "simulate", "simulate_scenario", "run", "RunResult", "SimulationDiverged",
     "compute_metrics",
+    # Plug-in controllers and identifiers (entry points; see drake_contact.plugins)
+    "MakeController", "MakeIdentifier", "installed_controllers", "installed_identifiers",
+    "ContactDetector",
     # Testing one sampled system (controller, identifier) without a simulator
     "ApplySampledUpdates", "CalcSampledUpdate",
     # Plotting (on your own axes; no backend is set)

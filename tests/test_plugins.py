@@ -248,3 +248,26 @@ def test_the_contact_detector_switches_at_5_n_and_records_the_pose():
     detector.GetInputPort("force").FixValue(context, [-0.1])
     assert detector.GetOutputPort("mode").Eval(context)[0] == 0.0
     assert detector.GetOutputPort("contact_info").Eval(context)[0] == 2.0
+
+
+def _contact_scenarios():
+    from drake_contact.resources import bundled_scenario_names
+    return [name for name in bundled_scenario_names()
+            if load_scenario(name).controller.name in ("hybrid", "nn")]
+
+
+@pytest.mark.parametrize("name", _contact_scenarios())
+def test_the_example_wires_into_every_contact_scenario(name):
+    """jt_pi declares only tip_pose, tip_velocity, joint_positions, force,
+    force_desired and joint_torque_commanded: the station supplies the rest
+    (force reference, contact detector for the identifiers and metrics)."""
+    from drake_contact import simulate_scenario
+    scenario = load_scenario(name, ["controller.name=jt_pi", "simulation.settle_window=0.01",
+                                    "scoring.window_start_s=0.01", "scoring.window_end_s=0.02",
+                                    "scoring.rmse_window_s=0.01"], duration=0.05)
+    station = MakeContactDiagram(scenario)
+    assert station.signals["mode"].meaning.startswith("controller mode")
+    assert "contact_info" in station.signals and "force_desired" in station.signals
+    result = simulate_scenario(scenario)
+    assert result.status == "completed"
+    assert np.all(result.log["contact_info"][:, 0] == -1.0)  # no contact in 50 ms
