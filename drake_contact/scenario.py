@@ -8,8 +8,6 @@ range, raising :class:`ScenarioError` with one line naming the field.
 """
 
 import dataclasses as dc
-import re
-import typing
 from pathlib import Path
 
 import numpy as np

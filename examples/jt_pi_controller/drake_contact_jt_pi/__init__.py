@@ -24,7 +24,7 @@ class JacobianTransposePI(LeafSystem):
 
     def update(self, context, discrete_state):
         g, port = self.g, lambda name: self.GetInputPort(name).Eval(context)
-        (x, y, phi), (xd, yd, phid) = port("tip_pose"), port("tip_velocity")
+        (_, y, phi), (xd, yd, phid) = port("tip_pose"), port("tip_velocity")
         f, f_d = port("force")[0], port("force_desired")[0]
         integral = context.get_discrete_state(1).GetAtIndex(0)
         if f > g["contact_n"]:
