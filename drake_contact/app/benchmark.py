@@ -457,7 +457,7 @@ def _fmt(value, digits=2):
     return str(value)
 
 
-def markdown(board, suite_name, suite: Suite, wall_s=None) -> str:
+def markdown(board, suite_name, suite: Suite, wall_s=None, rows=None) -> str:
     walls = ", ".join(f"{k / 1000:g} kN/m & {b:g} N s/m" for k, b in suite.walls)
     lines = [f"# Leaderboard: suite `{suite_name}`", "",
              f"Walls (one noise seed each): {walls}. Every run {suite.duration_s:g} s; scored "
@@ -485,7 +485,47 @@ def markdown(board, suite_name, suite: Suite, wall_s=None) -> str:
                 f"| {_fmt(e['step_settling_s_median'])} | {_fmt(e['step_unsettled_worst'], 0)} "
                 f"| {_fmt(e['y_max_abs_error_mm_worst'])} | {_fmt(e['phi_max_abs_error_mrad_worst'], 1)} "
                 f"| {_fmt(e['torque_rms_nm_median'])} |")
+        if rows is not None:
+            contenders = [e["contender"] for e in board if e["task"] == task]
+            lines += ["", "Each run's force RMSE (o; x: lost contact):", "", "```",
+                      *strip_chart(rows, contenders, task), "```"]
     return "\n".join(lines) + "\n"
+
+
+#: The text strip charts' log axis (N) and width (characters).
+STRIP_RANGE_N = (0.1, 30.0)
+STRIP_WIDTH = 60
+
+
+def strip_chart(rows, contenders, task) -> list:
+    """A text figure for Markdown: per contender, each run's force RMSE on a
+    log axis (``o``; ``x`` a run that lost contact, ``!`` failed)."""
+    low, high = np.log10(STRIP_RANGE_N[0]), np.log10(STRIP_RANGE_N[1])
+    width = max(len(c) for c in contenders)
+    lines = []
+    for contender in contenders:
+        strip = [" "] * STRIP_WIDTH
+        for r in rows:
+            if r["contender"] != contender or r["task"] != task:
+                continue
+            rmse = r.get("force_rmse_n")
+            mark = "o" if r["status"] == "completed" else "x"
+            if rmse is None:
+                rmse, mark = STRIP_RANGE_N[1], "!"
+            at = (np.log10(min(max(rmse, STRIP_RANGE_N[0]), STRIP_RANGE_N[1])) - low) / (high - low)
+            i = min(int(at * (STRIP_WIDTH - 1) + 0.5), STRIP_WIDTH - 1)
+            strip[i] = "x" if "x" in (strip[i], mark) else ("!" if "!" in (strip[i], mark)
+                                                             else mark)
+        lines.append(f"{contender:>{width}} |{''.join(strip)}|")
+    ticks = [0.1, 0.3, 1, 3, 10, 30]
+    axis = [" "] * (STRIP_WIDTH + 8)
+    for tick in ticks:
+        i = int((np.log10(tick) - low) / (high - low) * (STRIP_WIDTH - 1) + 0.5)
+        for k, ch in enumerate(f"{tick:g}"):
+            if i + k < len(axis):
+                axis[i + k] = ch
+    lines.append(" " * (width + 2) + "".join(axis).rstrip() + "  force RMSE (N), log")
+    return lines
 
 
 def task_figure(rows, contenders, task, path: Path):
@@ -567,7 +607,8 @@ def run_benchmark(out_dir, *, contenders=None, identifiers=None, suite="standard
     _write_csv(board, out / "leaderboard.csv", ["rank", "contender", "task", "runs",
                                                  "runs_losing_contact", "runs_failed",
                                                  "mean_rank", "force_rmse_n_median"])
-    text = markdown(board, suite, spec, wall_s=wall if todo and not batch.interrupted else None)
+    text = markdown(board, suite, spec, wall_s=wall if todo and not batch.interrupted else None,
+                    rows=rows)
     id_board = []
     if id_names:
         id_rows = [row for r in id_runs for row in score_identifiers(r, runs_dir / r.path,
