@@ -76,6 +76,16 @@ BROKEN = {
         def make(options):
             return Plugin()
         """,
+    "reads_impedance": """
+        class Plugin(LeafSystem):
+            def __init__(self):
+                super().__init__()
+                self.DeclareVectorInputPort("impedance_estimate", 3)
+                self.DeclareVectorInputPort("force_desired", 1)
+                self.DeclareVectorOutputPort("joint_torque_commanded", 3, lambda c, o: o.SetZero())
+        def make(options):
+            return Plugin()
+        """,
     "raises": """
         def make(options):
             raise RuntimeError("no license server")
@@ -164,6 +174,22 @@ def test_a_plugin_that_does_not_fit_is_refused_naming_it(broken_plugins, name, m
     with pytest.raises(ScenarioError) as info:
         MakeContactDiagram(scenario)
     assert message in str(info.value)
+
+
+def test_impedance_estimate_comes_from_the_named_identifier(broken_plugins):
+    scenario = load_scenario("identify_styrofoam", [
+        "controller.name=reads_impedance", "controller.impedance_source=rls_matched"])
+    station = MakeContactDiagram(scenario)
+    assert "mode" in station.signals  # the station's detector: no contact_info of its own
+    with pytest.raises(ScenarioError, match="controller.impedance_source = 'ols' names no "
+                                            "identifier"):
+        load_scenario("identify_styrofoam", ["controller.name=reads_impedance",
+                                             "controller.impedance_source=ols"])
+    with pytest.raises(ScenarioError, match="controller 'reads_impedance' reads "
+                                            "impedance_estimate: name its identifier in "
+                                            "controller.impedance_source"):
+        MakeContactDiagram(load_scenario("identify_styrofoam",
+                                         ["controller.name=reads_impedance"]))
 
 
 def test_the_cli_refuses_a_plugin_without_joint_torque_with_exit_2(broken_plugins, tmp_path):
