@@ -90,8 +90,8 @@ def _build_parser():
                            help="contenders (default: the thesis's, the robust ones and every "
                                 "installed controller but the push harness)")
     benchmark.add_argument("--identifiers", metavar="all|A,B,...",
-                           help="also benchmark identifiers, side by side under the thesis's "
-                                "identification controller (all: every one)")
+                           help="also benchmark identifiers, side by side under nn_robust "
+                                "(all: every one)")
     benchmark.add_argument("--suite", default="standard", help="quick or standard (default)")
     where = benchmark.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int,
