@@ -19,7 +19,8 @@ A **task** (:data:`TASKS`) is a force reference and an environment law: a
 t), K_e drifting +1 %/s during contact, Hunt-Crossley contact, and
 tangential (Coulomb) friction at the wall. Each runs on every wall of the
 suite (:data:`SUITES`), one noise seed per wall. The walls of ``standard``
-lie between the points the baselines and the robust schemes were tuned on.
+spread over K_e 3.5-145 kN/m and B_e 11-280 N s/m, and none is a point the
+baselines or the robust schemes were tuned on.
 
 Each run is one point on the Dask sweep runner
 (:func:`drake_contact.app.sweep.run_points`), into
@@ -113,8 +114,11 @@ class Suite:
 SUITES = {
     "quick": Suite(walls=((5000.0, 30.0), (60000.0, 200.0)), tasks=("hold", "square"),
                    duration_s=16.0, window_s=(1.0, 6.0)),
+    # Eight walls over the whole range, K_e log-spaced 3.5-145 kN/m with B_e
+    # alternately low and high (11-280 N s/m), none on a tuning grid.
     "standard": Suite(
-        walls=tuple((k, b) for k in (4000.0, 12000.0, 40000.0, 120000.0) for b in (15.0, 150.0)),
+        walls=((3500.0, 250.0), (6000.0, 12.0), (12000.0, 90.0), (25000.0, 20.0),
+               (50000.0, 280.0), (80000.0, 45.0), (120000.0, 150.0), (145000.0, 11.0)),
         tasks=tuple(TASKS), duration_s=30.0, window_s=(2.0, 20.0)),
 }
 
