@@ -172,6 +172,9 @@ def contender_scenario(name: str) -> dict:
 
 @dc.dataclass(frozen=True)
 class Run:
+    """One run of the suite: a contender (or ``identifiers``: the identifier
+    contenders' shared run) on a task and a wall."""
+
     contender: str
     task: str
     wall: int
@@ -234,26 +237,6 @@ def identifier_names(requested) -> list:
     return names
 
 
-@dc.dataclass(frozen=True)
-class IdentifierRun:
-    task: str
-    wall: int
-    stiffness: float
-    damping: float
-
-    @property
-    def seed(self) -> int:
-        return self.wall
-
-    @property
-    def path(self) -> str:
-        return f"identifiers/{self.task}/wall{self.wall}_K{self.stiffness:g}_B{self.damping:g}"
-
-    def overrides(self, suite: Suite) -> list:
-        return Run(IDENTIFIER_CONTROLLER, self.task, self.wall, self.stiffness,
-                   self.damping).overrides(suite)
-
-
 def identifier_scenario(names) -> dict:
     data = contender_scenario(IDENTIFIER_CONTROLLER)
     entries = identifier_entries()
@@ -261,7 +244,7 @@ def identifier_scenario(names) -> dict:
     return data
 
 
-def score_identifiers(run: IdentifierRun, run_dir: Path, names) -> list:
+def score_identifiers(run: Run, run_dir: Path, names) -> list:
     """One identifiers.csv row per identifier of a run."""
     metrics = finished_metrics(run_dir) or {}
     rows = []
@@ -594,8 +577,7 @@ def run_benchmark(out_dir, *, contenders=None, identifiers=None, suite="standard
     runs_dir = out / "runs"
     runs = plan(names, spec)
     scenarios = {name: contender_scenario(name) for name in names}
-    id_runs = [IdentifierRun(task, i, k, b) for task in spec.tasks
-               for i, (k, b) in enumerate(spec.walls)] if id_names else []
+    id_runs = plan(["identifiers"], spec) if id_names else []
     points = [(r.path, scenarios[r.contender], r.overrides(spec), r.seed,
                str(runs_dir / r.path), False) for r in runs]
     if id_names:

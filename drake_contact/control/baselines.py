@@ -74,7 +74,8 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from drake_contact.control.controller_model import ArmModel, ControllerModelConfig
-from drake_contact.errors import ScenarioError, require_finite
+from drake_contact.control.hybrid_controller import read_measured_state
+from drake_contact.errors import ScenarioError
 from drake_contact.plant.arm import CONTROL_PERIOD, DeclareSampledUpdate, is_sample_time
 from drake_contact.plant.planar_arm import solve3
 
@@ -266,14 +267,8 @@ class _BaselineLaw(LeafSystem):
         if not is_sample_time(t):
             value.set_value(held.copy())  # zero-order hold between samples
             return
-        # Python floats: on 3-vectors numpy's per-call cost is most of the work.
-        x = self._pose.Eval(context).tolist()
-        xd = self._velocity.Eval(context).tolist()
-        q = self._q.Eval(context).tolist()
-        qdot = self._qdot.Eval(context).tolist()
-        if not math.isfinite(sum(x) + sum(xd) + sum(q) + sum(qdot)):
-            require_finite(np.array([math.nan]), context, "controller",
-                           "the controller's measured state")
+        x, xd, q, qdot = read_measured_state(
+            context, self._pose, self._velocity, self._q, self._qdot)
         f = self._force.Eval(context)[0]
         mode = held[_MODE]
         info = held[_INFO].tolist()

@@ -186,6 +186,21 @@ _TAU, _MODE, _INFO, _JACOBIAN, _INTERNAL = (slice(0, 3), slice(3, 4), slice(4, 8
 _LAW_SIZE = 22
 
 
+def read_measured_state(context, pose, velocity, joint_positions, joint_velocities):
+    """The tip pose and velocity and the joint angles and velocities a
+    controller's input ports hold at ``context``, as lists of Python floats
+    (on 3-vectors numpy's per-call cost is most of the work); a non-finite
+    value stops the run, saying when (SimulationDiverged)."""
+    x = pose.Eval(context).tolist()
+    xd = velocity.Eval(context).tolist()
+    q = joint_positions.Eval(context).tolist()
+    qdot = joint_velocities.Eval(context).tolist()
+    if not math.isfinite(sum(x) + sum(xd) + sum(q) + sum(qdot)):
+        require_finite(np.array([math.nan]), context, "controller",
+                       "the controller's measured state")
+    return x, xd, q, qdot
+
+
 class HybridControlLaw(LeafSystem):
     """The law of :class:`HybridController` as one leaf system: its single
     output ``control`` (20) is the law evaluated on the inputs at a sample
@@ -233,14 +248,8 @@ class HybridControlLaw(LeafSystem):
         if not is_sample_time(t):
             output.SetFromVector(held)  # zero-order hold between samples
             return
-        # Python floats: on 3-vectors numpy's per-call cost is most of the work.
-        x = self._pose.Eval(context).tolist()
-        xd = self._velocity.Eval(context).tolist()
-        q = self._q.Eval(context).tolist()
-        qdot = self._qdot.Eval(context).tolist()
-        if not math.isfinite(sum(x) + sum(xd) + sum(q) + sum(qdot)):
-            require_finite(np.array([math.nan]), context, "controller",
-                           "the controller's measured state")
+        x, xd, q, qdot = read_measured_state(
+            context, self._pose, self._velocity, self._q, self._qdot)
         f = self._force.Eval(context)[0]
         mode = held[3]
         info = held[_INFO].tolist()
