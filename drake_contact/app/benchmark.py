@@ -291,13 +291,8 @@ def aggregate_identifiers(rows, names, tasks) -> list:
                      if r["damping_error_pct"] is not None]),
                 "mass_kg_median": _median([r["mass_kg"] for r in runs]),
                 "settling_s_median": _median(settled)})
-        order = sorted(entries, key=lambda e: (e["runs"] - e["runs_settled_5pct"],
-                                               e["stiffness_abs_error_pct_median"]
-                                               if e["stiffness_abs_error_pct_median"] is not None
-                                               else np.inf))
-        for rank, entry in enumerate(order, start=1):
-            entry["rank"] = rank
-        board += order
+        board += _ranked(entries, lambda e: e["runs"] - e["runs_settled_5pct"],
+                         "stiffness_abs_error_pct_median")
     for name in names:
         mine = [e for e in board if e["identifier"] == name]
         board.append({"identifier": name, "task": "all",
@@ -375,6 +370,16 @@ def score_run(run: Run, run_dir: Path, suite: Suite) -> dict:
     return row
 
 
+def _ranked(entries, failures, score):
+    """``entries`` sorted by ``failures(entry)``, then by ``entry[score]``
+    (None last), each given its ``rank`` from 1."""
+    order = sorted(entries, key=lambda e: (failures(e), np.inf if e[score] is None
+                                           else e[score]))
+    for rank, entry in enumerate(order, start=1):
+        entry["rank"] = rank
+    return order
+
+
 def _median(values):
     values = [v for v in values if v is not None and np.isfinite(v)]
     return float(np.median(values)) if values else None
@@ -405,12 +410,7 @@ def aggregate(rows, contenders, tasks) -> list:
                 entry[f"{column}_median"] = _median(values)
                 entry[f"{column}_worst"] = _max(values)
             entries.append(entry)
-        order = sorted(entries, key=lambda e: (e["_bad"], e["force_rmse_n_median"]
-                                               if e["force_rmse_n_median"] is not None
-                                               else np.inf))
-        for rank, entry in enumerate(order, start=1):
-            entry["rank"] = rank
-        board += order
+        board += _ranked(entries, lambda e: e["_bad"], "force_rmse_n_median")
     for contender in contenders:
         ranks = [e["rank"] for e in board if e["contender"] == contender and e["task"] != "all"]
         board.append({"contender": contender, "task": "all", "mean_rank": float(np.mean(ranks)),
