@@ -131,6 +131,14 @@ CONTROLLER_SIGNALS = {
 }
 
 
+#: The same signals when the station's ContactDetector makes them.
+DETECTOR_SIGNALS = {
+    "mode": "the station's contact detector: 1 from filtered force > 5 N, 0 below 0 N",
+    "contact_info": "the detector's [first switch time (s) or -1, x, y, phi at the switch] "
+                    "(s, m, rad)",
+}
+
+
 def _add_arm_and_wall(builder, scenario):
     """The plant, its tip kinematics, the wall and the joint friction, wired;
     returns (plant, scene_graph, tip, wall, friction)."""
@@ -264,8 +272,11 @@ def MakeContactDiagram(scenario: Scenario) -> ContactStation:
            "q1, q2 as read, q3 filtered (rad)")
     export("joint_velocities_estimated", measured.joint_velocities,
            "joint velocities by backward differences (rad/s)")
+    detected = not controller_system.HasOutputPort("contact_info")
     for name, meaning in CONTROLLER_SIGNALS.items():
         if name in controller:
+            if detected and name in DETECTOR_SIGNALS:
+                meaning = DETECTOR_SIGNALS[name]
             export(name, controller[name], meaning)
     for name, port in controller.items():
         if name not in CONTROLLER_SIGNALS and name not in ("joint_torque_commanded",

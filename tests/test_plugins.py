@@ -292,7 +292,7 @@ def test_the_example_wires_into_every_contact_scenario(name):
                                     "scoring.window_start_s=0.01", "scoring.window_end_s=0.02",
                                     "scoring.rmse_window_s=0.01"], duration=0.05)
     station = MakeContactDiagram(scenario)
-    assert station.signals["mode"].meaning.startswith("controller mode")
+    assert station.signals["mode"].meaning.startswith("the station's contact detector")
     assert "contact_info" in station.signals and "force_desired" in station.signals
     result = simulate_scenario(scenario)
     assert result.status == "completed"
