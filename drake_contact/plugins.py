@@ -39,8 +39,9 @@ exit status 2).
 import dataclasses as dc
 from importlib.metadata import entry_points
 
-import numpy as np
-from pydrake.systems.framework import BasicVector, LeafSystem, PortDataType, System
+from pydrake.systems.framework import (
+    BasicVector, Diagram, DiagramBuilder, LeafSystem, PortDataType, System)
+from pydrake.systems.primitives import Demultiplexer
 
 from drake_contact.errors import ScenarioError
 from drake_contact.plant.arm import DeclareSampledUpdate, is_sample_time
@@ -181,31 +182,20 @@ class ContactDetectorConfig:
     contact_loss_threshold_n: float = 0.0
 
 
-class ContactDetector(LeafSystem):
-    """The station's own contact switch, for controllers that have no
-    ``contact_info`` output: the same 5 N rule as the hybrid controller's
-    switch, on the same filtered force, sampled every 1 ms.
-
-    Inputs: ``force`` (1, N, filtered), ``tip_pose`` (3). Outputs (this
-    sample's values, held between samples): ``mode`` (1: 0 no contact, 1
-    contact) and ``contact_info`` (4: [time of the first switch (s) or -1,
-    x, y, phi at the latest switch]), as the hybrid controller's, and
-    ``detected`` (5: both)."""
+class ContactDetectorLaw(LeafSystem):
+    """The switch of :class:`ContactDetector` as one leaf: its output
+    ``detected`` (5: [mode, first switch time or -1, x, y, phi at the
+    switch]) is evaluated once per sample and held between samples."""
 
     def __init__(self, config: ContactDetectorConfig = ContactDetectorConfig()):
         super().__init__()
         self._config = config
         self._force = self.DeclareVectorInputPort("force", 1)
         self._pose = self.DeclareVectorInputPort("tip_pose", 3)
-        # [mode, first switch time, x, y, phi]
         self._held = self.DeclareDiscreteState([0.0, -1.0, 0.0, 0.0, 0.0])
-        depends = {self.all_input_ports_ticket(), self.xd_ticket(), self.time_ticket()}
         self._detected = self.DeclareVectorOutputPort(
-            "detected", 5, self._calc, prerequisites_of_calc=depends)
-        self.DeclareVectorOutputPort("mode", 1, lambda c, out: out.SetAtIndex(
-            0, self._detected.Eval(c)[0]), prerequisites_of_calc=depends)
-        self.DeclareVectorOutputPort("contact_info", 4, lambda c, out: out.SetFromVector(
-            self._detected.Eval(c)[1:]), prerequisites_of_calc=depends)
+            "detected", 5, self._calc, prerequisites_of_calc={
+                self.all_input_ports_ticket(), self.xd_ticket(), self.time_ticket()})
         DeclareSampledUpdate(self, self._update)
 
     def _update(self, context, state):
@@ -226,4 +216,29 @@ class ContactDetector(LeafSystem):
             switch = self._pose.Eval(context).tolist()
         elif mode == 1.0 and f < c.contact_loss_threshold_n:
             mode = 0.0
-        output.SetFromVector(np.array([mode, first, *switch]))
+        output.SetFromVector([mode, first, *switch])
+
+
+class ContactDetector(Diagram):
+    """The station's own contact switch, for controllers that have no
+    ``contact_info`` output: the same 5 N rule as the hybrid controller's
+    switch, on the same filtered force, sampled every 1 ms.
+
+    Inputs: ``force`` (1, N, filtered), ``tip_pose`` (3). Outputs (this
+    sample's values, held between samples): ``mode`` (1: 0 no contact, 1
+    contact) and ``contact_info`` (4: [time of the first switch (s) or -1,
+    x, y, phi at the latest switch]), as the hybrid controller's. A
+    sub-diagram: the law (one Python evaluation per sample) and a
+    Demultiplexer that names its outputs."""
+
+    def __init__(self, config: ContactDetectorConfig = ContactDetectorConfig()):
+        super().__init__()
+        builder = DiagramBuilder()
+        law = builder.AddNamedSystem("law", ContactDetectorLaw(config))
+        split = builder.AddNamedSystem("outputs", Demultiplexer([1, 4]))
+        builder.Connect(law.get_output_port(), split.get_input_port())
+        for name in ("force", "tip_pose"):
+            builder.ExportInput(law.GetInputPort(name), name)
+        builder.ExportOutput(split.get_output_port(0), "mode")
+        builder.ExportOutput(split.get_output_port(1), "contact_info")
+        builder.BuildInto(self)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from drake_contact import MakeContactDiagram, ScenarioError, dump_scenario, load_scenario
-from drake_contact.plant.arm import CalcSampledUpdate
+from drake_contact.plant.arm import ApplySampledUpdates
 from drake_contact.plugins import (
     CONTROLLER_GROUP, ContactDetector, MakeController, installed_controllers)
 
@@ -268,7 +268,7 @@ def test_the_contact_detector_switches_at_5_n_and_records_the_pose():
     detector.GetInputPort("force").FixValue(context, [5.1])
     np.testing.assert_array_equal(detector.GetOutputPort("contact_info").Eval(context),
                                   [2.0, 0.457, 0.001, 0.002])
-    context.SetDiscreteState(CalcSampledUpdate(detector, context).get_vector(0).get_value())
+    ApplySampledUpdates(detector, context)
     # Later samples keep the first switch time; below 0 N contact is lost.
     context.SetTime(2.5)
     detector.GetInputPort("force").FixValue(context, [-0.1])
