@@ -47,7 +47,8 @@ def sample(system, *, force, f_d=20.0, state=None, t=SAMPLE_T):
     tau = system.GetOutputPort("joint_torque_commanded").Eval(context).copy()
     mode = system.GetOutputPort("mode").Eval(context)[0]
     info = system.GetOutputPort("contact_info").Eval(context).copy()
-    return tau, mode, info, CalcSampledUpdate(system, context).get_vector().value().copy()
+    law_context = system.law.GetMyContextFromRoot(context)
+    return tau, mode, info, CalcSampledUpdate(system.law, law_context).get_vector().value().copy()
 
 
 def held_state(system, *, mode, info=(-1.0, 0.0, 0.0, 0.0), timer=0.0, x_origin=0.0,

@@ -70,8 +70,8 @@ import math
 import numbers
 
 import numpy as np
-from pydrake.common.value import AbstractValue
-from pydrake.systems.framework import LeafSystem, ValueProducer
+from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import Demultiplexer
 
 from drake_contact.control.controller_model import ArmModel, ControllerModelConfig
 from drake_contact.control.hybrid_controller import read_measured_state
@@ -220,10 +220,11 @@ class _BaselineLaw(LeafSystem):
     world); tip_velocity (3) (m/s, rad/s); joint_positions (3) (rad);
     joint_velocities (3) (rad/s); force (1): the DSP's filtered normal force
     (N, pushing > 0); force_desired (1) (N).
-    Output ports (this sample's values, held between samples):
-    joint_torque_commanded (3): the motor command (N m); mode (1): 0
-    approach, 1 contact; contact_info (4): [time of the first switch to
-    contact (s) or -1, x, y, phi at the latest switch].
+    Output port ``law`` (this sample's values, held between samples; split
+    by :class:`BaselineController`): joint_torque_commanded (3): the motor
+    command (N m); mode (1): 0 approach, 1 contact; contact_info (4): [time
+    of the first switch to contact (s) or -1, x, y, phi at the latest
+    switch]; then the law's state (approach timer and origin, its own).
     """
 
     #: Initial values of the contact law's own state.
@@ -244,17 +245,10 @@ class _BaselineLaw(LeafSystem):
         held[_INFO] = [-1.0, 0.0, 0.0, 0.0]
         held[_LAW_STATE:] = self._law_state0
         self._held = self.DeclareDiscreteState(held)
-        self._law = self.DeclareCacheEntry(
-            "law", ValueProducer(allocate=lambda: AbstractValue.Make(held.copy()),
-                                 calc=self._calc_law),
-            {self.all_input_ports_ticket(), self.xd_ticket(), self.time_ticket()})
-        for name, part in (("joint_torque_commanded", _TAU), ("mode", slice(_MODE, _MODE + 1)),
-                           ("contact_info", _INFO)):
-            self.DeclareVectorOutputPort(
-                name, part.stop - part.start,
-                lambda context, output, part=part: output.SetFromVector(
-                    self._law.Eval(context)[part]),
-                prerequisites_of_calc={self._law.ticket()})
+        self._law = self.DeclareVectorOutputPort(
+            "law", len(held), self._calc_law,
+            prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket(),
+                                   self.time_ticket()})
         DeclareSampledUpdate(self, self._update)
 
     def _update(self, context, state):
@@ -265,7 +259,7 @@ class _BaselineLaw(LeafSystem):
         held = context.get_discrete_state(self._held).value()
         t = context.get_time()
         if not is_sample_time(t):
-            value.set_value(held.copy())  # zero-order hold between samples
+            value.SetFromVector(held)  # zero-order hold between samples
             return
         x, xd, q, qdot = read_measured_state(
             context, self._pose, self._velocity, self._q, self._qdot)
@@ -305,8 +299,8 @@ class _BaselineLaw(LeafSystem):
         if wrench is not None:  # J^T wrench
             tau = [tau[i] + J[0][i] * wrench[0] + J[1][i] * wrench[1] + J[2][i] * wrench[2]
                    for i in range(3)]
-        value.set_value(np.array(self._model.command(tau) + [mode] + info + [timer, x_origin]
-                                 + law_state))
+        value.SetFromVector(self._model.command(tau) + [mode] + info + [timer, x_origin]
+                            + law_state)
 
     def _approach_acceleration(self, timer, x_origin, x, xd):
         """a = K_p (x_d - x) - K_v xdot on the guarded move's x_d."""
@@ -476,17 +470,40 @@ def _is_number(value):
     return isinstance(value, numbers.Real) and not isinstance(value, bool)
 
 
-def impedance(options: dict) -> ImpedanceControlLaw:
+class BaselineController(Diagram):
+    """A baseline as the station wires it: its law (one Python evaluation
+    per sample, ``law``) and a Demultiplexer naming the law's outputs,
+    ``joint_torque_commanded`` (3), ``mode`` (1) and ``contact_info`` (4),
+    as :class:`~drake_contact.control.hybrid_controller.HybridController`
+    does; inputs as the law's."""
+
+    def __init__(self, law: "_BaselineLaw"):
+        super().__init__()
+        builder = DiagramBuilder()
+        self.law = builder.AddNamedSystem("law", law)
+        size = law.get_output_port().size()
+        split = builder.AddNamedSystem("outputs", Demultiplexer([3, 1, 4, size - 8]))
+        builder.Connect(law.get_output_port(), split.get_input_port())
+        for i in range(law.num_input_ports()):
+            builder.ExportInput(law.get_input_port(i), law.get_input_port(i).get_name())
+        for index, name in enumerate(("joint_torque_commanded", "mode", "contact_info")):
+            builder.ExportOutput(split.get_output_port(index), name)
+        builder.BuildInto(self)
+
+
+def impedance(options: dict) -> BaselineController:
     """The impedance baseline from ``controller.options`` (a plain dict)."""
-    return ImpedanceControlLaw(_config_from_options(ImpedanceConfig, "impedance", options))
+    return BaselineController(
+        ImpedanceControlLaw(_config_from_options(ImpedanceConfig, "impedance", options)))
 
 
-def admittance(options: dict) -> AdmittanceControlLaw:
+def admittance(options: dict) -> BaselineController:
     """The admittance baseline from ``controller.options`` (a plain dict)."""
-    return AdmittanceControlLaw(_config_from_options(AdmittanceConfig, "admittance", options))
+    return BaselineController(
+        AdmittanceControlLaw(_config_from_options(AdmittanceConfig, "admittance", options)))
 
 
-def parallel_force(options: dict) -> ParallelForceControlLaw:
+def parallel_force(options: dict) -> BaselineController:
     """The parallel force/position baseline from ``controller.options``."""
-    return ParallelForceControlLaw(
-        _config_from_options(ParallelForceConfig, "parallel_force", options))
+    return BaselineController(ParallelForceControlLaw(
+        _config_from_options(ParallelForceConfig, "parallel_force", options)))
