@@ -1,12 +1,16 @@
 """Builds the simulation diagram of one scenario: the contact station.
 
-    controller --joint_torque_commanded--> torque_saturation --> motors --> plant.actuation
+    controller --joint_torque_commanded--> [safety_supervisor] --> torque_saturation
+      --> [drive faults] --> motors --> plant.actuation
     plant.state --> tip_kinematics --tip_state--> wall --force_on_tip--+
     plant.state --> joint_friction ------------------------------------+--> adder
     adder (J^T F_wall + tau_friction) --> plant.applied_generalized_force
     plant.state --> encoders (quantized q) --> estimator --> tip pose/velocity/acceleration
     wall.force_on_tip --> force_sensor (FS6-120A, analog on a 12 kHz grid) --> dsp --> force
     estimator, dsp (MeasuredSignals) --> controller, identifiers
+    [bracketed]: only when the scenario has ``safety.enabled`` or ``faults``
+    (drake_contact.faults: sensor faults sit in the DSP, encoder faults
+    before the estimator, environment faults before the wall)
 
 :func:`MakeContactDiagram` returns a :class:`ContactStation`: a Drake Diagram
 whose exported output ports are its signals, each documented in
@@ -20,10 +24,14 @@ import zlib
 import numpy as np
 from pydrake.common import RandomGenerator
 from pydrake.systems.framework import Diagram, DiagramBuilder, PortDataType
-from pydrake.systems.primitives import Adder, ConstantVectorSource, MatrixGain, RandomSource
+from pydrake.systems.primitives import (
+    Adder, ConstantVectorSource, MatrixGain, Multiplexer, RandomSource)
 
 from drake_contact.control.force_reference import ForceReference
+from drake_contact.control.safety_supervisor import (
+    SAFETY_STATES, STOP_REASONS, SafetySupervisor)
 from drake_contact.errors import ScenarioError
+from drake_contact.faults import ChainFaults, FaultClock
 from drake_contact.identification.identifiers import AddIdentifiers
 from drake_contact.measured import MeasuredSignals
 from drake_contact.plant.arm import CONTROL_PERIOD, AddArmPlant, MakeArmModel
@@ -140,8 +148,10 @@ DETECTOR_SIGNALS = {
 
 
 def _add_arm_and_wall(builder, scenario):
-    """The plant, its tip kinematics, the wall and the joint friction, wired;
-    returns (plant, scene_graph, tip, wall, friction)."""
+    """The plant, its tip kinematics, the wall (behind the scenario's
+    environment faults) and the joint friction, wired; returns (plant,
+    scene_graph, tip, wall, friction, faults): ``faults`` is a
+    :class:`_FaultPorts` (no clock when the scenario has no faults)."""
     plant, scene_graph = AddArmPlant(builder, scenario.arm)
     state_port = plant.get_state_output_port()
     joint_inertias = np.diag(plant.CalcMassMatrix(plant.CreateDefaultContext()))
@@ -149,10 +159,28 @@ def _add_arm_and_wall(builder, scenario):
 
     tip = builder.AddNamedSystem("tip_kinematics", TipKinematics(plant))
     builder.Connect(state_port, tip.GetInputPort("plant_state"))
-    wall = builder.AddNamedSystem(
-        "wall", CompliantWall(scenario.environment, scenario.arm.time_step))
-    builder.Connect(tip.GetOutputPort("tip_state"), wall.GetInputPort("tip_state"))
+    faults = scenario.faults
+    wall = builder.AddNamedSystem("wall", CompliantWall(
+        scenario.environment, scenario.arm.time_step,
+        stiffness_scale_input=any(f.signal == "stiffness" for f in faults)))
     builder.Connect(wall.GetOutputPort("force_on_tip"), tip.GetInputPort("force_on_tip"))
+    if faults:
+        # The faults' clock reads the true contact force; the wall's own
+        # inputs may be corrupted (environment faults).
+        clock = builder.AddNamedSystem("fault_clock", FaultClock())
+        builder.Connect(wall.GetOutputPort("contact_force"), clock.get_input_port())
+        clock = clock.get_output_port()
+        surface, active = ChainFaults(builder, faults, "surface",
+                                      tip.GetOutputPort("tip_state"), 6, clock)
+        builder.Connect(surface, wall.GetInputPort("tip_state"))
+        if wall.HasInputPort("stiffness_scale"):
+            one = builder.AddNamedSystem("stiffness_nominal", ConstantVectorSource([1.0]))
+            scale, more = ChainFaults(builder, faults, "stiffness", one.get_output_port(), 1, clock)
+            builder.Connect(scale, wall.GetInputPort("stiffness_scale"))
+            active |= more
+    else:
+        clock, active = None, {}
+        builder.Connect(tip.GetOutputPort("tip_state"), wall.GetInputPort("tip_state"))
 
     friction = AddJointFriction(
         builder, scenario.joint_friction, mass_matrix_diagonal=joint_inertias,
@@ -162,7 +190,16 @@ def _add_arm_and_wall(builder, scenario):
     builder.Connect(tip.GetOutputPort("generalized_force"), external.get_input_port(0))
     builder.Connect(friction.GetOutputPort("torque"), external.get_input_port(1))
     builder.Connect(external.get_output_port(), plant.get_applied_generalized_force_input_port())
-    return plant, scene_graph, tip, wall, friction
+    return plant, scene_graph, tip, wall, friction, _FaultPorts(clock, active)
+
+
+@dc.dataclass
+class _FaultPorts:
+    """The FaultClock's output (None without faults) and each fault's
+    ``active`` output port by its index in the scenario."""
+
+    clock: object
+    active: dict
 
 
 def MakeFloorDiagram(scenario: Scenario, joint_torque=(4.0, 0.0, 0.0)):
@@ -171,7 +208,7 @@ def MakeFloorDiagram(scenario: Scenario, joint_torque=(4.0, 0.0, 0.0)):
     ``contact_force_true``."""
     scenario.validate()
     builder = DiagramBuilder()
-    plant, _, _, wall, _ = _add_arm_and_wall(builder, scenario)
+    plant, _, _, wall, _, _ = _add_arm_and_wall(builder, scenario)
     torque = builder.AddNamedSystem("joint_torque", ConstantVectorSource(list(joint_torque)))
     builder.Connect(torque.get_output_port(), plant.get_actuation_input_port())
     builder.ExportOutput(wall.GetOutputPort("contact_force"), "contact_force_true")
@@ -192,20 +229,29 @@ def MakeContactDiagram(scenario: Scenario) -> ContactStation:
     """
     scenario.validate()
     builder = DiagramBuilder()
-    plant, scene_graph, tip, wall, friction = _add_arm_and_wall(builder, scenario)
+    plant, scene_graph, tip, wall, friction, faults = _add_arm_and_wall(builder, scenario)
     state_port = plant.get_state_output_port()
 
     encoders = AddEncoders(builder, scenario.encoders, scenario.arm.initial_positions)
     builder.Connect(state_port, encoders.GetInputPort("plant_state"))
     estimator = AddKinematicEstimator(builder, MakeArmModel(), scenario.estimator)
-    builder.Connect(encoders.GetOutputPort("joint_positions_measured"),
-                    estimator.GetInputPort("joint_positions_measured"))
+    counted = encoders.GetOutputPort("joint_positions_measured")
+    if faults.clock is not None:
+        counted, active = ChainFaults(
+            builder, scenario.faults, "encoders", counted, 3, faults.clock,
+            counts_per_revolution=scenario.encoders.counts_per_revolution)
+        faults.active |= active
+    builder.Connect(counted, estimator.GetInputPort("joint_positions_measured"))
 
     sensor = AddForceSensor(builder, scenario.force_sensor)
     builder.Connect(wall.GetOutputPort("force_on_tip"), sensor.GetInputPort("wrench"))
     builder.Connect(tip.GetOutputPort("tip_state"), sensor.GetInputPort("tip_state"))
     dsp = AddDspForceInput(builder, scenario.dsp, scenario.force_sensor.fine_period,
-                           sensor.GetOutputPort("voltage_frame").size())
+                           sensor.GetOutputPort("voltage_frame").size(), faults=scenario.faults)
+    if dsp.HasInputPort("contact_time"):
+        builder.Connect(faults.clock, dsp.GetInputPort("contact_time"))
+        faults.active |= {i: dsp.GetOutputPort(f"fault_active_{i}")
+                          for i, f in enumerate(scenario.faults) if f.signal == "force"}
     builder.Connect(sensor.GetOutputPort("voltage"), dsp.GetInputPort("voltage"))
     if dsp.HasInputPort("voltage_frame"):
         builder.Connect(sensor.GetOutputPort("voltage_frame"), dsp.GetInputPort("voltage_frame"))
@@ -235,8 +281,21 @@ def MakeContactDiagram(scenario: Scenario) -> ContactStation:
     saturation = AddTorqueSaturation(builder, scenario.torque_limits)
     motors = builder.AddNamedSystem(
         "motors", MatrixGain(np.diag(scenario.arm.motor_torque_scale)))
-    builder.Connect(torque, saturation.get_input_port())
-    builder.Connect(saturation.get_output_port(), motors.get_input_port())
+    supervisor = None
+    if scenario.safety.enabled:
+        supervisor = builder.AddNamedSystem("safety_supervisor", SafetySupervisor(scenario.safety))
+        builder.Connect(torque, supervisor.GetInputPort("joint_torque_commanded"))
+        for name, port in measured.items():
+            if supervisor.HasInputPort(name):
+                builder.Connect(port, supervisor.GetInputPort(name))
+        builder.Connect(supervisor.GetOutputPort("joint_torque"), saturation.get_input_port())
+    else:
+        builder.Connect(torque, saturation.get_input_port())
+    drive = saturation.get_output_port()
+    if faults.clock is not None:
+        drive, active = ChainFaults(builder, scenario.faults, "drive", drive, 3, faults.clock)
+        faults.active |= active
+    builder.Connect(drive, motors.get_input_port())
     builder.Connect(motors.get_output_port(), plant.get_actuation_input_port())
 
     signals = _Signals(builder)
@@ -252,9 +311,18 @@ def MakeContactDiagram(scenario: Scenario) -> ContactStation:
            "true surface displacement xe (m)")
     export("true_impedance", wall.GetOutputPort("true_impedance"),
            "true [M_e, B_e, K_e] (kg, N s/m, N/m)")
-    export("joint_positions_measured", encoders.GetOutputPort("joint_positions_measured"),
-           "encoder-quantized q, zeroed at q0 (rad)")
+    export("joint_positions_measured", counted,
+           "encoder-quantized q, zeroed at q0, after any encoder fault (rad)")
     export("joint_torque_commanded", torque, "controller's torque before saturation (N m)")
+    if supervisor is not None:
+        export("joint_torque_supervised", supervisor.GetOutputPort("joint_torque"),
+               "the safety supervisor's torque, before saturation (N m)")
+        export("safety_state", supervisor.GetOutputPort("safety_state"),
+               "the safety supervisor's decision: " + ", ".join(
+                   f"{k} {v}" for k, v in SAFETY_STATES.items()))
+        export("safety_stop_reason", supervisor.GetOutputPort("safety_stop_reason"),
+               "why the supervisor stopped the arm: " + ", ".join(
+                   f"{k} {v}" for k, v in STOP_REASONS.items()))
     export("joint_torque_applied", motors.get_output_port(),
            "motor torque into the plant: saturated, times the motor scale (N m)")
     export("joint_friction_torque", friction.GetOutputPort("torque"),
@@ -292,6 +360,15 @@ def MakeContactDiagram(scenario: Scenario) -> ContactStation:
                 export(f"force_estimate_{config.name}",
                        identifiers.GetOutputPort(f"force_estimate_{config.name}"),
                        f"identifier {config.name}'s network force f(x) (N)")
+    if scenario.faults:
+        flags = builder.AddNamedSystem("fault_flags", Multiplexer(len(scenario.faults)))
+        for i in range(len(scenario.faults)):
+            builder.Connect(faults.active[i], flags.get_input_port(i))
+        export("fault_active", flags.get_output_port(),
+               "1 while the scenario's fault i is on, one column per fault in its order",
+               log_as={"fault_active": slice(0, len(scenario.faults))})
+        export("fault_contact_time", faults.clock,
+               "first sample with a true contact force > 5 N, the faults' clock (s; -1 before)")
     export("query_object", scene_graph.get_query_output_port(),
            "the SceneGraph's query object (for visualizers)", log=False)
 

@@ -23,6 +23,8 @@ from drake_contact.sensing.force_sensor import ForceSensorConfig
 from drake_contact.control.hybrid_controller import HybridControllerConfig
 from drake_contact.identification.identifiers import IdentifierConfig, validate_identifiers
 from drake_contact.errors import ScenarioError
+from drake_contact.faults import FaultConfig, validate_faults
+from drake_contact.control.safety_supervisor import SafetyConfig
 from drake_contact.control.nn_compensator import NnCompensatorConfig
 from drake_contact.plant.joint_physics import (
     THESIS_TORQUE_LIMITS, EncoderConfig, JointFrictionConfig)
@@ -219,6 +221,10 @@ class Scenario:
     # Online identifiers, run side by side from the first contact switch.
     identifiers: list[IdentifierConfig] = dc.field(default_factory=list)
     scoring: ScoringConfig = dc.field(default_factory=ScoringConfig)
+    # Injected faults (drake_contact.faults), none in the thesis's scenarios.
+    faults: list[FaultConfig] = dc.field(default_factory=list)
+    # The safety supervisor between controller and motors (off in the thesis's).
+    safety: SafetyConfig = dc.field(default_factory=SafetyConfig)
 
     def validate(self):
         self.simulation.validate()
@@ -246,6 +252,14 @@ class Scenario:
             raise ScenarioError(f"controller.hybrid.stiffness_source = '{source}' names no "
                                 f"identifier: choose one of the scenario's identifiers or ''")
         self.scoring.validate()
+        validate_faults(self.faults)
+        self.safety.validate()
+        for i, fault in enumerate(self.faults):
+            if fault.kind == "encoder_missed_counts" \
+                    and self.encoders.counts_per_revolution[fault.joint] <= 0:
+                raise ScenarioError(
+                    f"faults[{i}].joint = {fault.joint}: encoder_missed_counts needs a counting "
+                    f"encoder, but encoders.counts_per_revolution[{fault.joint}] is 0")
 
 
 def _looks_like_yaml(text) -> bool:

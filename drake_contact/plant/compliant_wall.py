@@ -36,7 +36,7 @@ import dataclasses as dc
 import numpy as np
 import pydrake.symbolic as sym
 from pydrake.systems.framework import Diagram, DiagramBuilder
-from pydrake.systems.primitives import Demultiplexer, SymbolicVectorSystem
+from pydrake.systems.primitives import Demultiplexer, Multiplexer, SymbolicVectorSystem
 
 from drake_contact.errors import ScenarioError
 
@@ -115,6 +115,8 @@ class CompliantWall(Diagram):
 
     Input ports:
       tip_state (6): tip [x, y, phi, xdot, ydot, phidot] in world (m, rad, /s).
+      stiffness_scale (1, only with ``stiffness_scale_input``): factor on
+        K_e(t), for injected faults (drake_contact.faults).
     Output ports:
       force_on_tip (3): [f_x, f_y, tau_z] the wall applies to the tip, world
         frame (N, N, N m); f_x = -f_normal.
@@ -134,19 +136,27 @@ class CompliantWall(Diagram):
     :func:`contact_law_expressions`).
     """
 
-    def __init__(self, config: EnvironmentConfig, time_step: float):
+    def __init__(self, config: EnvironmentConfig, time_step: float, *,
+                 stiffness_scale_input=False):
         super().__init__()
         config.validate()
         self._config = config
         self._h = float(time_step)
-        t, state, tip, dynamics, outputs = contact_law_expressions(config, self._h)
+        t, state, tip, dynamics, outputs = contact_law_expressions(
+            config, self._h, stiffness_scale_input=stiffness_scale_input)
         builder = DiagramBuilder()
         law = builder.AddNamedSystem("contact_law", SymbolicVectorSystem(
             time=t, state=state, input=tip, dynamics=dynamics, output=outputs,
             time_period=self._h))
         split = builder.AddNamedSystem("outputs", Demultiplexer(list(OUTPUT_SIZES.values())))
         builder.Connect(law.get_output_port(), split.get_input_port())
-        builder.ExportInput(law.get_input_port(), "tip_state")
+        if stiffness_scale_input:
+            inputs = builder.AddNamedSystem("inputs", Multiplexer([6, 1]))
+            builder.Connect(inputs.get_output_port(), law.get_input_port())
+            builder.ExportInput(inputs.get_input_port(0), "tip_state")
+            builder.ExportInput(inputs.get_input_port(1), "stiffness_scale")
+        else:
+            builder.ExportInput(law.get_input_port(), "tip_state")
         for i, name in enumerate(OUTPUT_SIZES):
             builder.ExportOutput(split.get_output_port(i), name)
         builder.BuildInto(self)
@@ -172,9 +182,12 @@ def _held(e):
     return sym.max(e, -np.inf)
 
 
-def contact_law_expressions(config: EnvironmentConfig, h: float):
+def contact_law_expressions(config: EnvironmentConfig, h: float, *,
+                            stiffness_scale_input=False):
     """The wall as symbolic expressions: returns (t, state, tip, dynamics,
-    outputs), the time, state (5) and input (6, tip_state) variables, the
+    outputs), the time, state (5) and input (6, tip_state; 7 with
+    ``stiffness_scale_input``: then K_e(t) is multiplied by the 7th, for
+    injected faults) variables, the
     state's update x[n+1] = dynamics(t, x[n], tip) and the output vector
     [force_on_tip (3), contact_force, penetration, true_impedance (3)].
 
@@ -196,6 +209,10 @@ def contact_law_expressions(config: EnvironmentConfig, h: float):
         K = float(c.stiffness)
     else:
         K = _held(c.stiffness * (1.0 + c.stiffness_drift_per_s * t_k))
+    if stiffness_scale_input:
+        scale = sym.Variable("stiffness_scale")
+        tip = np.append(tip, scale)
+        K = _held(K * scale)
     xe = x - c.surface_x
     touching = sym.logical_and(xe > 0.0, xe >= s)
     elastic = _held(_held(K * xe) + c.damping * vx)

@@ -32,6 +32,7 @@ from pydrake.systems.primitives import (
 from drake_contact.blocks import AddSubdiagram
 from drake_contact.plant.arm import CONTROL_PERIOD
 from drake_contact.errors import ScenarioError
+from drake_contact.faults import ChainFaults
 from drake_contact.sensing.filters import (
     butterworth_digital, digital_filter_system, lifted_analog_filter_system, rc_lowpass_analog)
 
@@ -153,7 +154,7 @@ def _opaque(e):
 
 
 def AddDspForceInput(builder: DiagramBuilder, config: DspConfig, fine_period, ticks, *,
-                     name="dsp"):
+                     name="dsp", faults=()):
     """Adds the anti-aliasing option, the ADC/tare and the force filter as
     the sub-diagram ``name``; returns it.
 
@@ -165,6 +166,12 @@ def AddDspForceInput(builder: DiagramBuilder, config: DspConfig, fine_period, ti
     last frame; only with the RC filter in), ``force_measured`` (output, 1,
     N), ``force_filtered`` (output, 1, N) and, in ``probe`` mode,
     ``force_measured_antialiased`` (output, 1, N).
+
+    ``faults`` (a scenario's FaultConfig list; those on the force sensor are
+    used) are chained on the reading after ADC and tare, before the filter
+    (:mod:`drake_contact.faults`); then the block also has the input
+    ``contact_time`` (1, the FaultClock's) and an output ``fault_active_<i>``
+    (1) per force fault i.
     """
     config.validate()
 
@@ -192,14 +199,21 @@ def AddDspForceInput(builder: DiagramBuilder, config: DspConfig, fine_period, ti
         b, a = butterworth_digital(config.force_filter_cutoff_hz, 1.0 / CONTROL_PERIOD)
         force_filter = builder.AddNamedSystem(
             f"{name}_force_filter", digital_filter_system(b, a, CONTROL_PERIOD, channels=channels))
-        builder.Connect(adc.GetOutputPort("force"), force_filter.get_input_port())
+        reading = adc.GetOutputPort("force")
+        if any(f.signal == "force" for f in faults):
+            clock = builder.AddNamedSystem(f"{name}_contact_time", PassThrough(1))
+            ports["contact_time"] = clock.get_input_port()
+            reading, active = ChainFaults(builder, faults, "force", reading, channels,
+                                          clock.get_output_port())
+            ports |= {f"fault_active_{i}": port for i, port in active.items()}
+        builder.Connect(reading, force_filter.get_input_port())
         if channels == 1:
-            ports["force_measured"] = adc.GetOutputPort("force")
+            ports["force_measured"] = reading
             ports["force_filtered"] = force_filter.get_output_port()
         else:
             raw = builder.AddNamedSystem(f"{name}_raw_channels", Demultiplexer(2))
             filtered = builder.AddNamedSystem(f"{name}_filtered_channels", Demultiplexer(2))
-            builder.Connect(adc.GetOutputPort("force"), raw.get_input_port())
+            builder.Connect(reading, raw.get_input_port())
             builder.Connect(force_filter.get_output_port(), filtered.get_input_port())
             ports["force_measured"] = raw.get_output_port(0)
             ports["force_measured_antialiased"] = raw.get_output_port(1)

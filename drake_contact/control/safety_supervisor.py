@@ -1,0 +1,321 @@
+"""A safety supervisor between the controller and the motors (``safety:``).
+
+Not in the thesis (its experiments had none; its scenarios leave it off).
+It reads only what the controller reads (the DSP's force, the estimator's
+joint and tip states), never the truth, and passes the controller's torque
+through unless one of these acts, checked in this order every 1 ms:
+
+1. **Safe stop** (latched: the run ends held still). Fires on a non-finite
+   controller torque, a filtered force above ``force_limit_n`` for
+   ``force_stop_samples`` samples, a tip speed
+   above ``tip_speed_limit_m_s`` (after ``speed_check_from_s``), or a sensor fault that lasts longer than
+   ``sensor_fault_stop_s``. The arm is held at the joint angles of that
+   moment by a joint PD (``stop_stiffness``, ``stop_damping``), the
+   controller ignored from then on.
+2. **Sensor fault** (from the first contact on): the raw force reading has
+   not changed for ``sensor_frozen_samples`` samples. A strain-gauge reading
+   always moves by more than an ADC count from one sample to the next (its
+   noise alone is +-2 N at 0.06 N a count), so a constant one is a dead
+   channel, a frozen DSP buffer or a saturated ADC. The supervisor holds the
+   arm where it was when the reading last moved: the torque it sent then,
+   plus the joint PD of a stop around the joint angles of then, until the
+   reading moves again (a blind controller would act on a reading that is
+   not the force; a torque held without feedback lets the light wrist run
+   away, 3 rad/s within 0.2 s, measured).
+3. **Contact loss** (``contact_loss: hold``; ``approach`` leaves it to the
+   controller): after the first contact, a filtered force below
+   ``contact_loss_force_n`` for ``contact_loss_time_s``. The arm is held by
+   the joint PD where it was, until the measured force is back above
+   ``contact_force_n`` (the surface came back to the held tip).
+4. **Force reflex**: the filtered force above ``reflex_fraction`` of the
+   limit. For ``reflex_hold_s`` after it was last above, the push the
+   controller commands along x is clamped to ``reflex_push_fraction`` of
+   the limit and ``reflex_damping_x`` of tip damping is added.
+5. **Push clamp** (always, sensor-free): the normal force the controller's
+   torque commands, F = J(q)^-T tau, is clamped along +x to
+   ``push_clamp_fraction`` of the limit. A biased, scaled, saturated or dead
+   sensor can make a force loop push without bound; this cannot.
+
+Last, each joint's torque may change by at most ``torque_rate_limit`` (N m/s)
+per sample (0: no limit). Every decision is logged as ``safety_state``
+(:data:`SAFETY_STATES`).
+"""
+
+import dataclasses as dc
+import math
+
+import numpy as np
+from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import Demultiplexer
+
+from drake_contact.errors import ScenarioError
+from drake_contact.plant.arm import CONTROL_PERIOD, DeclareSampledUpdate, is_sample_time
+from drake_contact.plant.planar_arm import solve3, tip_jacobian
+
+#: safety_state values, in order of precedence (higher wins).
+SAFETY_STATES = {0: "pass", 1: "push clamped", 2: "force reflex", 3: "contact-loss hold",
+                 4: "sensor-fault hold", 5: "safe stop"}
+PASS, CLAMPED, REFLEX, LOSS_HOLD, SENSOR_HOLD, STOPPED = range(6)
+CONTACT_LOSS_REACTIONS = ("approach", "hold")
+
+
+@dc.dataclass
+class SafetyConfig:
+    """The supervisor's limits and reactions (off unless ``enabled``). The
+    limits also define a safe end of a run in the metrics, on or off."""
+
+    # Put the supervisor between the controller and the motors.
+    enabled: bool = False
+    # The true normal force it guards (N), read from the measured force.
+    force_limit_n: float = 60.0
+    # The stop needs the filtered force over the limit this many samples in
+    # a row (two 30 N spikes of a faulty sensor read 41 N through the
+    # filter for one sample).
+    force_stop_samples: int = 3
+    # The reflex fires above this fraction of the limit (filtered force).
+    reflex_fraction: float = 0.7
+    # ... and lasts this long after the force was last above it (s).
+    reflex_hold_s: float = 0.3
+    # During a reflex, the commanded push along x is clamped to this
+    # fraction of the limit, with this tip damping along x (N s/m) added.
+    reflex_push_fraction: float = 0.4
+    reflex_damping_x: float = 300.0
+    # The commanded push along x is always clamped to this fraction of the
+    # limit (sensor-free: from the torque and J(q)).
+    push_clamp_fraction: float = 0.8
+    # Tip speed (|xdot, ydot|, m/s) above which it stops the arm, checked
+    # from speed_check_from_s on (the estimator's start-up transient reads
+    # up to 43 m/s in its first 20 ms; the thesis's arm moves at up to
+    # 0.22 m/s when it starts).
+    tip_speed_limit_m_s: float = 0.5
+    speed_check_from_s: float = 0.5
+    # Largest torque change per joint (N m/s); 0 = no limit. (The thesis's
+    # controllers change joints 1 and 2 by up to 2.2 N m in 1 ms.)
+    torque_rate_limit: list[float] = dc.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    # A raw reading unchanged for this many 1 ms samples is a sensor fault
+    # (0: never checked).
+    sensor_frozen_samples: int = 5
+    # A sensor fault longer than this (s) ends in a safe stop.
+    sensor_fault_stop_s: float = 1.0
+    # After a contact loss: hold (joint PD where it was) or approach (the
+    # controller's own approach).
+    contact_loss: str = "approach"
+    # Contact: filtered force above this (N); lost: below this (N) for this long (s).
+    contact_force_n: float = 5.0
+    contact_loss_force_n: float = 0.5
+    contact_loss_time_s: float = 0.05
+    # The joint PD of a hold or a stop (N m/rad, N m s/rad): about 5 Hz and
+    # damping 0.7 on the arm's joint inertias at q0 (1.03, 0.117, 0.0029 kg m^2).
+    stop_stiffness: list[float] = dc.field(default_factory=lambda: [1000.0, 110.0, 2.8])
+    stop_damping: list[float] = dc.field(default_factory=lambda: [45.0, 5.0, 0.13])
+
+    def validate(self, prefix="safety"):
+        def bad(field, value, allowed):
+            raise ScenarioError(f"{prefix}.{field} = {value} is out of range: {allowed}")
+
+        def finite(x):
+            return isinstance(x, (int, float)) and math.isfinite(x)
+        if not (finite(self.force_limit_n) and self.force_limit_n > 0):
+            bad("force_limit_n", self.force_limit_n, "must be > 0 N")
+        for field in ("reflex_fraction", "reflex_push_fraction", "push_clamp_fraction"):
+            value = getattr(self, field)
+            if not (finite(value) and 0 < value <= 1):
+                bad(field, value, "must be in (0, 1]")
+        for field in ("reflex_hold_s", "reflex_damping_x", "contact_loss_force_n",
+                      "speed_check_from_s"):
+            value = getattr(self, field)
+            if not (finite(value) and value >= 0):
+                bad(field, value, "must be >= 0")
+        for field in ("tip_speed_limit_m_s", "sensor_fault_stop_s", "contact_force_n",
+                      "contact_loss_time_s"):
+            value = getattr(self, field)
+            if not (finite(value) and value > 0):
+                bad(field, value, "must be > 0")
+        if not self.contact_loss_force_n < self.contact_force_n:
+            bad("contact_loss_force_n", self.contact_loss_force_n,
+                f"must be below contact_force_n = {self.contact_force_n} N")
+        if not (isinstance(self.sensor_frozen_samples, int) and self.sensor_frozen_samples >= 0):
+            bad("sensor_frozen_samples", self.sensor_frozen_samples, "must be an integer >= 0")
+        if not (isinstance(self.force_stop_samples, int) and self.force_stop_samples >= 1):
+            bad("force_stop_samples", self.force_stop_samples, "must be an integer >= 1")
+        if self.contact_loss not in CONTACT_LOSS_REACTIONS:
+            raise ScenarioError(f"{prefix}.contact_loss = '{self.contact_loss}' is unknown: "
+                                f"choose one of {', '.join(CONTACT_LOSS_REACTIONS)}")
+        for field in ("torque_rate_limit", "stop_stiffness", "stop_damping"):
+            value = getattr(self, field)
+            if len(value) != 3 or not all(finite(x) and x >= 0 for x in value):
+                bad(field, value, "must be 3 values >= 0")
+
+
+# The law's output and held state: [tau (3), safety_state, then memory].
+_TAU = slice(0, 3)
+_STATE = 3
+_Q_HOLD = slice(4, 7)          # joint angles a hold or stop holds (rad)
+_TAU_GOOD = slice(7, 10)       # torque sent when the reading last moved (N m)
+_Q_GOOD = slice(10, 13)        # joint angles when the reading last moved (rad)
+_RAW_PREV, _FROZEN, _ARMED, _REFLEX_T, _LOSS_T, _FAULT_T, _OVER, _REASON = range(13, 21)
+_LAW_SIZE = 21
+#: Why the safe stop fired (the ``safety_stop_reason`` output).
+STOP_REASONS = {0: "none", 1: "non-finite controller torque", 2: "measured force over the limit",
+                3: "tip speed over the limit", 4: "sensor fault too long"}
+
+
+class SafetySupervisorLaw(LeafSystem):
+    """The supervisor's law as one leaf: output ``law`` (21) is evaluated at
+    each 1 ms sample from the inputs and held between, the sample's update
+    stores it (as :class:`drake_contact.control.hybrid_controller.HybridControlLaw`).
+
+    Input ports: joint_torque_commanded (3, N m), force (1, filtered, N),
+    force_raw (1, N), joint_positions (3, rad), joint_velocities (3,
+    rad/s), tip_velocity (3, m/s, rad/s).
+    Output port: law (21): [tau (3, N m), safety_state, memory (16), stop reason].
+    """
+
+    def __init__(self, config: SafetyConfig):
+        super().__init__()
+        config.validate()
+        self._config = config
+        self._tau = self.DeclareVectorInputPort("joint_torque_commanded", 3)
+        self._force = self.DeclareVectorInputPort("force", 1)
+        self._force_raw = self.DeclareVectorInputPort("force_raw", 1)
+        self._q = self.DeclareVectorInputPort("joint_positions", 3)
+        self._qdot = self.DeclareVectorInputPort("joint_velocities", 3)
+        self._v_tip = self.DeclareVectorInputPort("tip_velocity", 3)
+        held = np.zeros(_LAW_SIZE)
+        held[[_REFLEX_T, _LOSS_T, _FAULT_T]] = -np.inf
+        held[_RAW_PREV] = np.nan
+        self._held = self.DeclareDiscreteState(held)
+        self._law = self.DeclareVectorOutputPort(
+            "law", _LAW_SIZE, self._calc_law,
+            prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket(),
+                                   self.time_ticket()})
+        DeclareSampledUpdate(self, self._update)
+
+    def _update(self, context, state):
+        state.set_value(self._law.Eval(context))
+
+    def _calc_law(self, context, output):
+        held = context.get_discrete_state(self._held).value()
+        t = context.get_time()
+        if not is_sample_time(t):
+            output.SetFromVector(held)
+            return
+        out = held.copy()
+        c = self._config
+        tau_cmd = self._tau.Eval(context)
+        f = float(self._force.Eval(context)[0])
+        raw = float(self._force_raw.Eval(context)[0])
+        q = self._q.Eval(context)
+        qdot = self._qdot.Eval(context)
+        v = self._v_tip.Eval(context)
+        limit = c.force_limit_n
+
+        armed = held[_ARMED] > 0 or f > c.contact_force_n
+        # Sensor: frozen-reading counter (only after the first contact).
+        if raw == held[_RAW_PREV]:
+            frozen = held[_FROZEN] + 1
+        else:
+            frozen = 0
+            out[_TAU_GOOD] = held[_TAU]
+            out[_Q_GOOD] = q
+        sensor_fault = armed and c.sensor_frozen_samples > 0 \
+            and frozen >= c.sensor_frozen_samples
+        fault_t = held[_FAULT_T]
+        if sensor_fault and fault_t == -np.inf:
+            fault_t = t
+        elif not sensor_fault:
+            fault_t = -np.inf
+        # Contact loss timer.
+        loss_t = held[_LOSS_T]
+        if armed and f < c.contact_loss_force_n:
+            loss_t = t if loss_t == -np.inf else loss_t
+        elif f > c.contact_force_n:
+            loss_t = -np.inf
+        # Reflex: last time the force was above the reflex level.
+        reflex_t = t if f > c.reflex_fraction * limit else held[_REFLEX_T]
+
+        over = held[_OVER] + 1 if f > limit else 0
+        state = int(held[_STATE])
+        reason = int(held[_REASON])
+        if state != STOPPED:
+            reason = (1 if not np.all(np.isfinite(tau_cmd)) else
+                      2 if over >= c.force_stop_samples else
+                      3 if t >= c.speed_check_from_s
+                      and math.hypot(v[0], v[1]) > c.tip_speed_limit_m_s else
+                      4 if sensor_fault and t - fault_t >= c.sensor_fault_stop_s - 1e-9 else 0)
+        if reason:
+            if state != STOPPED:
+                out[_Q_HOLD] = q
+            state = STOPPED
+            tau = self._pd(out[_Q_HOLD], q, qdot, c.stop_stiffness, c.stop_damping)
+        elif sensor_fault:
+            state = SENSOR_HOLD
+            tau = out[_TAU_GOOD] + self._pd(out[_Q_GOOD], q, qdot, c.stop_stiffness,
+                                            c.stop_damping)
+        elif c.contact_loss == "hold" and (state == LOSS_HOLD and f <= c.contact_force_n or
+                                           loss_t > -np.inf and
+                                           t - loss_t >= c.contact_loss_time_s - 1e-9):
+            if state != LOSS_HOLD:
+                out[_Q_HOLD] = q
+            state = LOSS_HOLD
+            loss_t = -np.inf
+            tau = self._pd(out[_Q_HOLD], q, qdot, c.stop_stiffness, c.stop_damping)
+        else:
+            reflex = t - reflex_t <= c.reflex_hold_s + 1e-9
+            push_max = (c.reflex_push_fraction if reflex else c.push_clamp_fraction) * limit
+            J = tip_jacobian([float(x) for x in q])
+            # F = J^-T tau: solve J^T F = tau.
+            JT = [[J[r][k] for r in range(3)] for k in range(3)]
+            F = solve3(JT, [float(x) for x in tau_cmd])
+            if reflex:
+                F[0] -= c.reflex_damping_x * float(v[0])
+            clamped = F[0] > push_max
+            if clamped:
+                F[0] = push_max
+            if reflex or clamped:
+                tau = np.array([sum(J[r][k] * F[r] for r in range(3)) for k in range(3)])
+            else:
+                tau = np.array(tau_cmd, dtype=float)
+            state = REFLEX if reflex else CLAMPED if clamped else PASS
+        rate = np.asarray(c.torque_rate_limit) * CONTROL_PERIOD
+        if np.any(rate > 0) and t > CONTROL_PERIOD / 2:
+            step = np.where(rate > 0, np.clip(tau - held[_TAU], -rate, rate), tau - held[_TAU])
+            tau = held[_TAU] + step
+        out[_TAU] = tau
+        out[_STATE] = state
+        out[_RAW_PREV] = raw
+        out[_FROZEN] = frozen
+        out[_ARMED] = float(armed)
+        out[_REFLEX_T] = reflex_t
+        out[_LOSS_T] = loss_t
+        out[_FAULT_T] = fault_t
+        out[_OVER] = over
+        out[_REASON] = reason
+        output.SetFromVector(out)
+
+    @staticmethod
+    def _pd(q_hold, q, qdot, kp, kd):
+        return np.asarray(kp) * (q_hold - q) - np.asarray(kd) * qdot
+
+
+class SafetySupervisor(Diagram):
+    """The supervisor: :class:`SafetySupervisorLaw` and a Demultiplexer.
+
+    Input ports: those of the law. Output ports: ``joint_torque`` (3, N m,
+    to the torque saturation), ``safety_state`` (1, :data:`SAFETY_STATES`)
+    and ``safety_stop_reason`` (1, :data:`STOP_REASONS`).
+    """
+
+    def __init__(self, config: SafetyConfig):
+        super().__init__()
+        builder = DiagramBuilder()
+        law = builder.AddNamedSystem("law", SafetySupervisorLaw(config))
+        split = builder.AddNamedSystem("outputs", Demultiplexer([3, 1, _LAW_SIZE - 5, 1]))
+        builder.Connect(law.get_output_port(), split.get_input_port())
+        for i in range(law.num_input_ports()):
+            port = law.get_input_port(i)
+            builder.ExportInput(port, port.get_name())
+        builder.ExportOutput(split.get_output_port(0), "joint_torque")
+        builder.ExportOutput(split.get_output_port(1), "safety_state")
+        builder.ExportOutput(split.get_output_port(3), "safety_stop_reason")
+        builder.BuildInto(self)
