@@ -42,6 +42,8 @@ import copy
 import numpy as np
 
 from drake_contact.app.spectra import sensor_metrics
+from drake_contact.control.safety_supervisor import (
+    CLAMPED, REFLEX, SAFETY_STATES, STOP_REASONS)
 from drake_contact.plant.arm import CONTROL_PERIOD
 from drake_contact.scenario import Scenario
 
@@ -93,6 +95,8 @@ def compute_metrics(scenario: Scenario, log: dict, wall_s: float) -> dict:
     metrics.update(tracking_metrics(log, scenario))
     metrics.update(stability_metrics(log, scenario.scoring))
     metrics.update(identification_metrics(log, scenario.identifiers))
+    metrics.update(fault_metrics(log, scenario))
+    metrics.update(safety_metrics(log, scenario))
     warnings = tare_warnings(log, scenario)
     if warnings:
         metrics["warnings"] = warnings
@@ -357,3 +361,116 @@ def baseline_scenario(scenario: Scenario) -> Scenario:
     baseline.controller.name = "hybrid"
     baseline.description = f"hybrid part alone of: {scenario.description}"
     return baseline
+
+
+#: A fault's "after" is this long after its end (s).
+FAULT_AFTER_S = 2.0
+#: Tracking has recovered once the 100 ms mean of the true force is within
+#: this of f_d (N) and stays so for RECOVERY_HOLD_S.
+RECOVERY_BAND_N = 1.0
+RECOVERY_HOLD_S = 0.5
+#: A contact loss: the true force at zero for at least this long (s).
+LOSS_MIN_S = 0.02
+#: A run ends safe if, over its last END_WINDOW_S, the true force stays at or
+#: below safety.force_limit_n and the tip speed below its limit.
+END_WINDOW_S = 0.1
+
+
+def _moving_mean(x, n):
+    kernel = np.ones(n) / n
+    return np.convolve(x, kernel, mode="full")[:len(x)]  # causal, over the last n samples
+
+
+def _true_contact_losses(force, mask):
+    """Zero-force stretches of at least LOSS_MIN_S that start inside ``mask``
+    after the force was positive."""
+    touching = force > 0
+    n = int(round(LOSS_MIN_S / CONTROL_PERIOD))
+    drops = np.flatnonzero(touching[:-1] & ~touching[1:]) + 1
+    count = 0
+    for i in drops:
+        if mask[i] and not touching[i:i + n].any() and i + n <= len(force):
+            count += 1
+    return count
+
+
+def fault_metrics(log: dict, scenario: Scenario) -> dict:
+    """What each injected fault did (runs with ``faults``): ``faults`` is a
+    list, one entry per fault in the scenario's order, with its kind, when it
+    was on (s), the peak true force and tip speed during it and in the
+    FAULT_AFTER_S after it, the contact losses (true force at zero for 20 ms
+    or more) from its start to FAULT_AFTER_S after its end, and
+    ``recovery_s``: from its end until the 100 ms mean true force is back
+    within 1 N of f_d for 0.5 s (None if it never is, or without f_d)."""
+    if not scenario.faults or "fault_active" not in log or not len(log["t"]):
+        return {}
+    t = log["t"]
+    force = log["contact_force_true"]
+    speed = np.hypot(log["tip_velocity_true"][:, 0], log["tip_velocity_true"][:, 1])
+    active = np.asarray(log["fault_active"]).reshape(len(t), -1)
+    tracking = None
+    if "force_desired" in log:
+        n = int(round(0.1 / CONTROL_PERIOD))
+        tracking = np.abs(_moving_mean(force - log["force_desired"], n)) < RECOVERY_BAND_N
+    hold = int(round(RECOVERY_HOLD_S / CONTROL_PERIOD))
+    entries = []
+    for i, fault in enumerate(scenario.faults):
+        on = active[:, i] > 0.5
+        entry = {"kind": fault.kind, "start_s": None, "end_s": None}
+        if not on.any():
+            entries.append(entry)
+            continue
+        first, last = int(np.argmax(on)), len(on) - 1 - int(np.argmax(on[::-1]))
+        end = t[last] + CONTROL_PERIOD
+        after = (t >= end - 1e-9) & (t < end + FAULT_AFTER_S - 1e-9)
+        span = (t >= t[first] - 1e-9) & (t < end + FAULT_AFTER_S - 1e-9)
+        entry.update(
+            start_s=float(t[first]), end_s=float(end),
+            peak_force_during_n=float(force[on].max()),
+            peak_force_after_n=float(force[after].max()) if after.any() else None,
+            peak_tip_speed_during_m_s=float(speed[on].max()),
+            peak_tip_speed_after_m_s=float(speed[after].max()) if after.any() else None,
+            contact_losses=_true_contact_losses(force, span),
+            recovery_s=None)
+        if tracking is not None:
+            # Runs of `hold` samples in band, from the fault's end on.
+            ok = tracking & (t >= end - 1e-9)
+            runs = np.convolve(ok.astype(int), np.ones(hold, dtype=int), mode="valid")
+            starts = np.flatnonzero(runs == hold)
+            if len(starts):
+                entry["recovery_s"] = float(t[starts[0]] - end)
+        entries.append(entry)
+    return {"faults": entries}
+
+
+def safety_metrics(log: dict, scenario: Scenario) -> dict:
+    """The supervisor's decisions (runs with ``safety_state``):
+    ``safety_events`` lists each entry into a reflex, a hold or the stop
+    ({"time_s", "state"}), ``safety_clamped_s`` the time the push clamp
+    acted; and, for every run, ``ended_safe_log``: over the last 100 ms the
+    true force stayed at or below ``safety.force_limit_n`` and the tip speed
+    below ``safety.tip_speed_limit_m_s``, all finite (the runner's
+    ``ended_safe`` also needs the run to have completed)."""
+    t = log["t"]
+    if not len(t):
+        return {}
+    safety = scenario.safety
+    end = t >= t[-1] - END_WINDOW_S + 1e-9
+    force = log["contact_force_true"][end]
+    velocity = log["tip_velocity_true"][end]
+    finite = bool(np.all(np.isfinite(force)) and np.all(np.isfinite(velocity)))
+    metrics = {"ended_safe_log": finite and bool(
+        np.max(force) <= safety.force_limit_n
+        and np.max(np.hypot(velocity[:, 0], velocity[:, 1])) < safety.tip_speed_limit_m_s)}
+    if "safety_state" in log:
+        state = np.asarray(log["safety_state"]).round().astype(int)
+        entered = np.flatnonzero(np.diff(state) != 0) + 1
+        events = [{"time_s": float(t[i]), "state": SAFETY_STATES[state[i]]}
+                  for i in entered if state[i] >= REFLEX]
+        metrics.update(safety_events=events, safety_event_count=len(events),
+                       safety_clamped_s=float(np.sum(state == CLAMPED) * CONTROL_PERIOD),
+                       safety_final_state=SAFETY_STATES[int(state[-1])])
+        if "safety_stop_reason" in log:
+            reason = int(round(float(log["safety_stop_reason"][-1])))
+            metrics["safety_stop_reason"] = STOP_REASONS[reason] if reason else None
+    return metrics

@@ -232,6 +232,8 @@ def simulate(diagram, loggers: SignalLoggers, *, progress=None, realtime_rate=0.
         log = _truncate_at_divergence(log, force_limit)
     metrics = compute_metrics(scenario, log, wall_s)
     metrics["status"] = status
+    if "ended_safe_log" in metrics:
+        metrics["ended_safe"] = status == "completed" and metrics.pop("ended_safe_log")
     if message:
         metrics["message"] = message
     return RunResult(log=log, metrics=metrics, status=status, message=message, wall_s=wall_s,
