@@ -98,7 +98,44 @@ def _build_parser():
                        help="worker processes of a local cluster (default: one per core)")
     where.add_argument("--scheduler", metavar="ADDRESS",
                        help="a running Dask scheduler, e.g. tcp://10.0.0.5:8786")
+    faults = commands.add_parser(
+        "faults", help="every fault kind against the controllers, supervisor off and on, on a "
+                       "Dask cluster; write faults.md, faults.csv, runs.csv")
+    faults.add_argument("--out", required=True, help="output folder (rerun it to resume)")
+    faults.add_argument("--controllers", metavar="A,B,...",
+                        help="contenders (default: hybrid, nn, nn_robust, adaptive_hybrid)")
+    faults.add_argument("--suite", default="standard", help="quick or standard (default)")
+    where = faults.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int,
+                       help="worker processes of a local cluster (default: one per core)")
+    where.add_argument("--scheduler", metavar="ADDRESS",
+                       help="a running Dask scheduler, e.g. tcp://10.0.0.5:8786")
     return parser
+
+
+def _cmd_faults(args):
+    from drake_contact.app.fault_study import SUITES, check_contenders, run_fault_study
+    from drake_contact.app.sweep import terminal_progress
+    if args.workers is not None and args.workers < 1:
+        raise ScenarioError(f"--workers = {args.workers} is out of range: must be >= 1")
+    if args.suite not in SUITES:
+        raise ScenarioError(f"--suite = {args.suite} is unknown: choose one of "
+                            f"{', '.join(SUITES)}")
+    check_contenders(args.controllers)
+    _check_out(args.out)
+    result = run_fault_study(args.out, contenders=args.controllers, suite=args.suite,
+                             workers=args.workers, scheduler=args.scheduler,
+                             progress=terminal_progress())
+    print(f"{result.ran + result.skipped} runs ({result.ran} now, {result.skipped} from before) in "
+          f"{result.wall_s:.0f} s on {result.workers} workers")
+    for safety in ("off", "on"):
+        mine = [e for e in result.table if e["safety"] == safety]
+        runs = sum(e["runs"] - e["runs_failed"] for e in mine)
+        print(f"supervisor {safety:3s}: {sum(e['runs_past_limit'] for e in mine)}/{runs} runs "
+              f"more than 10 % over the limit, {sum(e['runs_recovered'] for e in mine)} recovered "
+              f"tracking, {sum(e['runs_ended_safe'] for e in mine)} ended safe")
+    print(f"wrote {args.out}/faults.md, faults.csv and runs.csv")
+    return EXIT_INTERRUPTED if result.interrupted else 0
 
 
 def _cmd_list(args):
@@ -255,7 +292,7 @@ def main(argv=None) -> int:
     try:
         return {"run": _cmd_run, "list": _cmd_list, "bench": _cmd_bench,
                 "reproduce": _cmd_reproduce, "sweep": _cmd_sweep,
-                "benchmark": _cmd_benchmark}[args.command](args)
+                "benchmark": _cmd_benchmark, "faults": _cmd_faults}[args.command](args)
     except ScenarioError as e:
         print(f"drake-contact: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT

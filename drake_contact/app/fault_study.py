@@ -1,0 +1,281 @@
+"""Every fault kind against the thesis's and the robust controllers, with and
+without the safety supervisor: ``drake-contact faults``.
+
+    drake-contact faults --out DIR [--controllers A,B,...] [--suite quick|standard]
+                         [--workers N | --scheduler ADDRESS]
+
+Each run is one benchmark contender (:mod:`drake_contact.app.benchmark`:
+the suite's arm, sensor and DSP, the contender's controller) tracking the
+thesis's 20/10 N square wave on one wall, with one fault of :data:`CASES`
+starting :data:`FAULT_START_S` after the first contact, once with the
+supervisor off and once on (``safety.enabled``, the limit
+:data:`FORCE_LIMIT_N`; the same limit says whether a run ended safe either
+way). The walls are points no controller was tuned on; wall i runs with
+noise seed i. Points run on the Dask sweep runner
+(:func:`drake_contact.app.sweep.run_points`) into
+``DIR/runs/<contender>/<safety>/<fault>/<wall>/``.
+
+Per run (``runs.csv``): the peak true force from the fault's start to the
+end of the run, whether it went past the limit by more than 10 %, the
+fault's contact losses, the time to recover tracking (the 100 ms mean true
+force back within 1 N of f_d for 0.5 s; ``-`` if never), whether the run
+ended safe and the supervisor's stop, if any. ``faults.md`` (and
+``faults.csv``) has, per fault and contender, off and on: the worst peak
+over the walls, the runs past the limit, the runs recovered and the median
+recovery time, the runs that ended safe.
+"""
+
+import csv
+import dataclasses as dc
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from drake_contact.app.benchmark import contender_names, contender_scenario
+from drake_contact.app.sweep import finished_metrics, run_points
+from drake_contact.errors import ScenarioError
+
+#: The supervisor's limit in every run (N): twice the square wave's top level.
+FORCE_LIMIT_N = 40.0
+#: Faults start this long after the first contact (s): past the impact, on
+#: the square wave's first 20 N level, 0.5 s before its step to 10 N.
+FAULT_START_S = 2.0
+#: Fault case name -> (what it is, the fault's fields but its start).
+CASES = {
+    "dropout_zero_50ms": ("the sensor reads 0 N for 50 ms",
+                          {"kind": "force_dropout_zero", "duration_s": 0.05}),
+    "dropout_hold_500ms": ("the reading freezes at its last value for 0.5 s",
+                           {"kind": "force_dropout_hold", "duration_s": 0.5}),
+    "spikes": ("30 N spikes at 50 Hz for 1 s",
+               {"kind": "force_spikes", "duration_s": 1.0, "magnitude": 30.0, "rate_hz": 50.0}),
+    "bias": ("the reading drops by 10 N for 2 s",
+             {"kind": "force_bias", "duration_s": 2.0, "magnitude": -10.0}),
+    "gain": ("the sensor's gain halves for 2 s",
+             {"kind": "force_gain", "duration_s": 2.0, "magnitude": 0.5}),
+    "saturation": ("the ADC clips at 15 N for 1 s",
+                   {"kind": "force_saturation", "duration_s": 1.0, "magnitude": 15.0}),
+    "missed_counts": ("joint 1's encoder misses 200 counts over 1 s",
+                      {"kind": "encoder_missed_counts", "duration_s": 1.0, "magnitude": 200.0,
+                       "joint": 0}),
+    "encoder_frozen": ("joint 2's reading freezes for 0.5 s",
+                       {"kind": "encoder_frozen", "duration_s": 0.5, "joint": 1}),
+    "retreat": ("the surface gives way by 5 mm for 0.5 s, then comes back",
+                {"kind": "surface_retreat", "duration_s": 0.5, "magnitude": 0.005}),
+    "surface_motion": ("the surface moves away at 10 mm/s for 1 s",
+                       {"kind": "surface_motion", "duration_s": 1.0, "magnitude": 0.01}),
+    "stiffness_step": ("K_e doubles for 1 s",
+                       {"kind": "stiffness_step", "duration_s": 1.0, "magnitude": 2.0}),
+    "stiffness_ramp": ("K_e ramps to 3 times over 2 s and stays",
+                       {"kind": "stiffness_ramp", "duration_s": 2.0, "magnitude": 3.0}),
+    "torque_limit": ("joint 1's torque limit drops to 2 N m for 1 s",
+                     {"kind": "torque_limit", "duration_s": 1.0, "magnitude": 2.0, "joint": 0}),
+    "motor_scale": ("joint 1's motor gives half its torque for 1 s",
+                    {"kind": "motor_scale", "duration_s": 1.0, "magnitude": 0.5, "joint": 0}),
+}
+#: The contenders by default: the thesis's hybrid (P only) and neural
+#: controllers and the robust ones.
+DEFAULT_CONTENDERS = ("hybrid", "nn", "nn_robust", "adaptive_hybrid")
+SAFETY = ("off", "on")
+
+
+@dc.dataclass(frozen=True)
+class Suite:
+    # [K_e (N/m), B_e (N s/m)] per wall; wall i runs with noise seed i.
+    walls: tuple
+    cases: tuple
+    # Simulated time per run (s): the slowest approach touches at about
+    # 8.3 s, then FAULT_START_S, the longest fault (2 s) and 3.5 s more.
+    duration_s: float
+
+
+SUITES = {
+    "quick": Suite(walls=((6000.0, 12.0),), cases=("dropout_zero_50ms", "gain"),
+                   duration_s=14.0),
+    "standard": Suite(walls=((6000.0, 12.0), (25000.0, 90.0), (80000.0, 45.0)),
+                      cases=tuple(CASES), duration_s=16.0),
+}
+
+
+@dc.dataclass(frozen=True)
+class Run:
+    contender: str
+    safety: str
+    case: str
+    wall: int
+    stiffness: float
+    damping: float
+
+    @property
+    def path(self) -> str:
+        return (f"{self.contender}/{self.safety}/{self.case}/"
+                f"wall{self.wall}_K{self.stiffness:g}_B{self.damping:g}")
+
+    def overrides(self, suite: Suite) -> list:
+        fault = {"start_s": FAULT_START_S, "start_from": "contact"} | CASES[self.case][1]
+        return ["force_reference.levels=[20.0, 10.0]", "force_reference.half_period_s=2.5",
+                f"environment.stiffness={self.stiffness}",
+                f"environment.damping={self.damping}",
+                f"simulation.duration={suite.duration_s}",
+                "faults=" + yaml.safe_dump([fault], default_flow_style=True).strip(),
+                f"safety.enabled={'true' if self.safety == 'on' else 'false'}",
+                f"safety.force_limit_n={FORCE_LIMIT_N}"]
+
+
+def plan(contenders, suite: Suite) -> list:
+    return [Run(c, s, case, i, k, b) for c in contenders for s in SAFETY for case in suite.cases
+            for i, (k, b) in enumerate(suite.walls)]
+
+
+def score_run(run: Run, run_dir: Path) -> dict:
+    """One row of runs.csv."""
+    row = {"contender": run.contender, "safety": run.safety, "fault": run.case,
+           "wall": run.wall, "stiffness_n_per_m": run.stiffness,
+           "damping_n_s_per_m": run.damping, "seed": run.wall}
+    metrics = finished_metrics(run_dir)
+    if metrics is None:
+        return row | {"status": "failed"}
+    fault = (metrics.get("faults") or [{}])[0]
+    peaks = [fault.get("peak_force_during_n"), fault.get("peak_force_after_n")]
+    peaks = [p for p in peaks if p is not None]
+    peak = max(peaks) if peaks else None
+    return row | {
+        "status": metrics["status"], "message": metrics.get("message", ""),
+        "fault_start_s": fault.get("start_s"),
+        "peak_force_n": peak,
+        "past_limit": bool(peak is not None and peak > 1.1 * FORCE_LIMIT_N
+                           or metrics["status"] == "diverged"),
+        "peak_tip_speed_m_s": max([s for s in (fault.get("peak_tip_speed_during_m_s"),
+                                               fault.get("peak_tip_speed_after_m_s"))
+                                   if s is not None], default=None),
+        "contact_losses": fault.get("contact_losses"),
+        "recovery_s": fault.get("recovery_s"),
+        "ended_safe": metrics.get("ended_safe"),
+        "safety_events": metrics.get("safety_event_count"),
+        "safety_stop": metrics.get("safety_stop_reason"),
+    }
+
+
+def aggregate(rows, contenders, cases) -> list:
+    """Per fault, contender and safety: worst peak, runs past the limit,
+    recovered, median recovery, contact losses, ended safe, stops."""
+    table = []
+    for case in cases:
+        for contender in contenders:
+            for safety in SAFETY:
+                runs = [r for r in rows if (r["fault"], r["contender"], r["safety"])
+                        == (case, contender, safety)]
+                done = [r for r in runs if r["status"] != "failed"]
+                recovered = [r["recovery_s"] for r in done if r.get("recovery_s") is not None]
+                peaks = [r["peak_force_n"] for r in done if r.get("peak_force_n") is not None]
+                table.append({
+                    "fault": case, "contender": contender, "safety": safety,
+                    "runs": len(runs), "runs_failed": len(runs) - len(done),
+                    "peak_force_n_worst": max(peaks) if peaks else None,
+                    "runs_past_limit": sum(bool(r["past_limit"]) for r in done),
+                    "runs_recovered": len(recovered),
+                    "recovery_s_median": float(np.median(recovered)) if recovered else None,
+                    "contact_losses": sum(r.get("contact_losses") or 0 for r in done),
+                    "runs_ended_safe": sum(bool(r.get("ended_safe")) for r in done),
+                    "runs_stopped": sum(bool(r.get("safety_stop")) for r in done)})
+    return table
+
+
+def _cell(e) -> str:
+    peak = "-" if e["peak_force_n_worst"] is None else f"{e['peak_force_n_worst']:.0f}"
+    rec = "-" if e["recovery_s_median"] is None else f"{e['recovery_s_median']:.2f}"
+    done = e["runs"] - e["runs_failed"]
+    text = f"{peak} N, rec {e['runs_recovered']}/{done} ({rec} s)"
+    if e["runs_past_limit"]:
+        text += f", **{e['runs_past_limit']} over**"
+    if e["contact_losses"]:
+        text += f", {e['contact_losses']} lost"
+    if e["runs_stopped"]:
+        text += f", {e['runs_stopped']} stopped"
+    if e["runs_ended_safe"] < done:
+        text += f", {done - e['runs_ended_safe']} unsafe end"
+    return text
+
+
+def markdown(table, contenders, suite: Suite, wall_s=None) -> str:
+    walls = ", ".join(f"{k / 1000:g} kN/m & {b:g} N s/m" for k, b in suite.walls)
+    lines = [
+        "# Faults", "",
+        f"Each fault starts {FAULT_START_S:g} s after the first contact (true force > 5 N), "
+        f"on the 20/10 N square wave; walls {walls}; limit {FORCE_LIMIT_N:g} N. Per cell, over "
+        "the walls: the worst true force from the fault's start to the end, the runs whose "
+        "tracking recovered (100 ms mean within 1 N of f_d for 0.5 s) and their median "
+        "time from the fault's end, runs more than 10 % over the limit, contact losses, "
+        "supervisor stops, runs that did not end safe.", ""]
+    if wall_s is not None:
+        lines += [f"Ran in {wall_s:.0f} s.", ""]
+    header = "| fault | " + " | ".join(f"{c} off | {c} on" for c in contenders) + " |"
+    lines += [header, "|---|" + "---|" * (2 * len(contenders))]
+    for case in suite.cases:
+        cells = []
+        for contender in contenders:
+            for safety in SAFETY:
+                e = next(e for e in table if (e["fault"], e["contender"], e["safety"])
+                         == (case, contender, safety))
+                cells.append(_cell(e))
+        lines.append(f"| {case}: {CASES[case][0]} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _write_csv(rows, path: Path, first):
+    columns = list(first) + sorted({k for r in rows for k in r} - set(first))
+    with path.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=columns)
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: "" if row.get(k) is None else row.get(k) for k in columns})
+
+
+@dc.dataclass
+class FaultStudyResult:
+    rows: list
+    table: list
+    wall_s: float
+    ran: int
+    skipped: int
+    workers: int
+    interrupted: bool
+
+
+def check_contenders(requested):
+    """The contenders (comma-separated, checked), DEFAULT_CONTENDERS if None."""
+    return contender_names(requested) if requested else list(DEFAULT_CONTENDERS)
+
+
+def run_fault_study(out_dir, *, contenders=None, suite="standard", workers=None,
+                    scheduler=None, progress=None) -> FaultStudyResult:
+    """Runs the study (the points not finished in ``out_dir`` before) and
+    writes runs.csv, faults.csv, faults.md and faults.yaml (what ran)."""
+    if suite not in SUITES:
+        raise ScenarioError(f"--suite = {suite} is unknown: choose one of {', '.join(SUITES)}")
+    spec = SUITES[suite]
+    names = check_contenders(contenders)
+    out = Path(out_dir)
+    runs = plan(names, spec)
+    scenarios = {name: contender_scenario(name) for name in names}
+    points = [(r.path, scenarios[r.contender], r.overrides(spec), r.wall,
+               str(out / "runs" / r.path), False) for r in runs]
+    todo = [p for p in points if finished_metrics(Path(p[4])) is None]
+    start = time.perf_counter()
+    batch = run_points(todo, workers=workers, scheduler=scheduler, progress=progress)
+    wall = time.perf_counter() - start
+    rows = [score_run(r, out / "runs" / r.path) for r in runs]
+    table = aggregate(rows, names, spec.cases)
+    _write_csv(rows, out / "runs.csv", ["contender", "safety", "fault", "wall", "status"])
+    _write_csv(table, out / "faults.csv", ["fault", "contender", "safety", "runs"])
+    (out / "faults.md").write_text(markdown(
+        table, names, spec, wall_s=wall if todo and not batch.interrupted else None))
+    (out / "faults.yaml").write_text(yaml.safe_dump(
+        {"suite": suite, "force_limit_n": FORCE_LIMIT_N, "fault_start_s": FAULT_START_S,
+         "cases": {c: CASES[c][1] for c in spec.cases},
+         "contenders": {n: scenarios[n] for n in names},
+         "walls": [list(w) for w in spec.walls]}, sort_keys=False))
+    return FaultStudyResult(rows, table, wall, ran=len(batch.timings),
+                            skipped=len(points) - len(todo), workers=batch.workers,
+                            interrupted=batch.interrupted)
