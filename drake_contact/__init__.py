@@ -25,6 +25,8 @@ from drake_contact.app.runner import (
     AddSignalLoggers, MakeRunDiagram, RunResult, SignalLoggers, run, simulate, simulate_scenario)
 from drake_contact.diagram import ContactStation, MakeContactDiagram, SeedNoise, Signal
 from drake_contact.errors import ScenarioError, SimulationDiverged
+from drake_contact.control.safety_supervisor import SafetyConfig, SafetySupervisor
+from drake_contact.faults import FAULT_KINDS, AddFault, FaultConfig
 from drake_contact.measured import MeasuredSignals
 from drake_contact.plant.arm import ApplySampledUpdates, CalcSampledUpdate
 from drake_contact.plugins import (
@@ -42,6 +44,8 @@ __all__ = [
     # Running
     "SeedNoise", "simulate", "simulate_scenario", "run", "RunResult", "SimulationDiverged",
     "compute_metrics",
+    # Faults and the safety supervisor (scenario keys faults: and safety:)
+    "FaultConfig", "FAULT_KINDS", "AddFault", "SafetyConfig", "SafetySupervisor",
     # Plug-in controllers and identifiers (entry points; see drake_contact.plugins)
     "MakeController", "MakeIdentifier", "installed_controllers", "installed_identifiers",
     "ContactDetector",

@@ -101,20 +101,22 @@ def test_a_sensor_fault_that_lasts_ends_in_a_safe_stop():
     ({"tau": [0.0, 0.0, 0.0], "force": 70.0}, 2),
     ({"tau": [0.0, 0.0, 0.0], "force": 10.0, "v": (0.4, 0.4, 0.0)}, 3),
 ])
-def test_the_safe_stop_holds_the_arm_where_it_stopped_and_latches(inputs, reason):
+def test_the_safe_stop_holds_the_arm_backed_off_and_latches(inputs, reason):
     bench = Bench(force_limit_n=60.0, tip_speed_limit_m_s=0.5, force_stop_samples=2)
     for _ in range(2):
         out, state = bench.step(**inputs)
     assert state == STOPPED
     assert bench.system.GetOutputPort("safety_stop_reason").Eval(bench.context)[0] == reason
-    np.testing.assert_array_equal(out, [0.0, 0.0, 0.0])  # at the stop angles, at rest
     config = SafetyConfig()
+    kp, kd = np.asarray(config.stop_stiffness), np.asarray(config.stop_damping)
+    # it holds the angles that put the tip 2 mm back along -x
+    q_hold = Q + np.linalg.solve(J, [-config.stop_backoff_m, 0.0, 0.0])
+    np.testing.assert_allclose(out, kp * (q_hold - Q), rtol=1e-9, atol=1e-12)
     q = Q + [0.01, -0.01, 0.0]
     qdot = np.array([0.1, 0.0, 0.2])
     out, state = bench.step(tau=[5.0, 0.0, 0.0], force=10.0, q=q, qdot=qdot)
     assert state == STOPPED  # latched: the controller is ignored from then on
-    np.testing.assert_allclose(out, np.asarray(config.stop_stiffness) * (Q - q)
-                               - np.asarray(config.stop_damping) * qdot, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(out, kp * (q_hold - q) - kd * qdot, rtol=1e-9, atol=1e-12)
 
 
 def test_one_sample_over_the_limit_is_a_reflex_not_a_stop():

@@ -9,8 +9,9 @@ through unless one of these acts, checked in this order every 1 ms:
    controller torque, a filtered force above ``force_limit_n`` for
    ``force_stop_samples`` samples, a tip speed
    above ``tip_speed_limit_m_s`` (after ``speed_check_from_s``), or a sensor fault that lasts longer than
-   ``sensor_fault_stop_s``. The arm is held at the joint angles of that
-   moment by a joint PD (``stop_stiffness``, ``stop_damping``), the
+   ``sensor_fault_stop_s``. The arm is held by a joint PD
+   (``stop_stiffness``, ``stop_damping``) at the joint angles that put the
+   tip ``stop_backoff_m`` back along -x from where it was then, the
    controller ignored from then on.
 2. **Sensor fault** (from the first contact on): the raw force reading has
    not changed for ``sensor_frozen_samples`` samples. A strain-gauge reading
@@ -22,8 +23,8 @@ through unless one of these acts, checked in this order every 1 ms:
    reading moves again (a blind controller would act on a reading that is
    not the force; a torque held without feedback lets the light wrist run
    away, 3 rad/s within 0.2 s, measured).
-3. **Contact loss** (``contact_loss: hold``; ``approach`` leaves it to the
-   controller): after the first contact, a filtered force below
+3. **Contact loss** (``contact_loss: hold``, the default; ``approach``
+   leaves it to the controller): after the first contact, a filtered force below
    ``contact_loss_force_n`` for ``contact_loss_time_s``. The arm is held by
    the joint PD where it was, until the measured force is back above
    ``contact_force_n`` (the surface came back to the held tip).
@@ -98,8 +99,10 @@ class SafetyConfig:
     # A sensor fault longer than this (s) ends in a safe stop.
     sensor_fault_stop_s: float = 1.0
     # After a contact loss: hold (joint PD where it was) or approach (the
-    # controller's own approach).
-    contact_loss: str = "approach"
+    # controller's own approach). Hold measured: nn_robust back within 1 N
+    # of f_d 0.10 s after a 5 mm, 0.5 s retreat of a 25 kN/m surface; 3.7 s
+    # by its approach.
+    contact_loss: str = "hold"
     # Contact: filtered force above this (N); lost: below this (N) for this long (s).
     contact_force_n: float = 5.0
     contact_loss_force_n: float = 0.5
@@ -108,6 +111,11 @@ class SafetyConfig:
     # damping 0.7 on the arm's joint inertias at q0 (1.03, 0.117, 0.0029 kg m^2).
     stop_stiffness: list[float] = dc.field(default_factory=lambda: [1000.0, 110.0, 2.8])
     stop_damping: list[float] = dc.field(default_factory=lambda: [45.0, 5.0, 0.13])
+    # A stop holds the tip this far back from where it was (m): holding a
+    # tip that was pushing past the limit where it was keeps pushing (34 N
+    # against a 28 N limit when K_e jumps 1.5 times, measured; 30 N with
+    # no supervisor at all).
+    stop_backoff_m: float = 0.002
 
     def validate(self, prefix="safety"):
         def bad(field, value, allowed):
@@ -122,7 +130,7 @@ class SafetyConfig:
             if not (finite(value) and 0 < value <= 1):
                 bad(field, value, "must be in (0, 1]")
         for field in ("reflex_hold_s", "reflex_damping_x", "contact_loss_force_n",
-                      "speed_check_from_s"):
+                      "speed_check_from_s", "stop_backoff_m"):
             value = getattr(self, field)
             if not (finite(value) and value >= 0):
                 bad(field, value, "must be >= 0")
@@ -245,7 +253,10 @@ class SafetySupervisorLaw(LeafSystem):
                       4 if sensor_fault and t - fault_t >= c.sensor_fault_stop_s - 1e-9 else 0)
         if reason:
             if state != STOPPED:
-                out[_Q_HOLD] = q
+                # Hold the joint angles that put the tip stop_backoff_m back
+                # along -x (to first order: dq = J^-1 dx).
+                dq = solve3(tip_jacobian([float(x) for x in q]), [-c.stop_backoff_m, 0.0, 0.0])
+                out[_Q_HOLD] = q + np.array(dq)
             state = STOPPED
             tau = self._pd(out[_Q_HOLD], q, qdot, c.stop_stiffness, c.stop_damping)
         elif sensor_fault:
