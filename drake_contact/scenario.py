@@ -326,7 +326,7 @@ def scenario_from_data(data: dict, *, source="scenario") -> Scenario:
     if options is None:
         options = {}
     scenario.controller.options = options
-    if isinstance(options, dict):
+    if isinstance(controller, dict) and isinstance(options, dict):
         controller["options"] = options  # the caller's mapping, unchanged
     for i, (entry, config) in enumerate(zip(identifiers, scenario.identifiers)):
         config.options = identifier_options[i] or {}
