@@ -213,11 +213,9 @@ class ForceSensor(LeafSystem):
         xo0 = np.linalg.solve(np.eye(2) - Ao, Bo[:, 0] * v0)
         self._internal = self.DeclareDiscreteState(
             np.concatenate([np.zeros(self._nx), [v0, 0.0], xo0]))
-        # The frame plans of every tick phase and every glitch carry an
-        # update can leave (others are made when met).
-        self._plans = {(phase, left): self._plan(phase, left)
-                       for phase in range(self._adc_every)
-                       for left in range(self._glitch_ticks + 1)}
+        # The frame plans by tick phase and glitch carry, each made when first
+        # met (not all up front: a slow ADC with a long glitch has millions).
+        self._plans = {}
         self.DeclarePeriodicDiscreteUpdateEvent(CONTROL_PERIOD, 0.0, self._update)
         self.DeclareStateOutputPort("voltage", self._voltage)
         self.DeclareStateOutputPort("voltage_frame", self._frame)
@@ -301,7 +299,7 @@ class ForceSensor(LeafSystem):
         key = (first_tick % self._adc_every, glitch_left)
         plan = self._plans.get(key)
         if plan is None:
-            plan = self._plan(*key)
+            plan = self._plans[key] = self._plan(*key)
         adc_ticks, glitch, glitch_left = plan
         # The DAC over the frame: the held value, replaced at each ADC tick,
         # plus the update glitch (glitch + held is held + glitch: commutative).
