@@ -185,8 +185,9 @@ class SimulationConfig:
         if not (np.isfinite(self.duration) and self.duration > 0):
             raise ScenarioError(
                 f"{prefix}.duration = {self.duration} is out of range: must be > 0 s")
-        if self.seed < 0:
-            raise ScenarioError(f"{prefix}.seed = {self.seed} is out of range: must be >= 0")
+        if not (0 <= self.seed < 2**64):
+            raise ScenarioError(f"{prefix}.seed = {self.seed} is out of range: "
+                                "must be in [0, 2**64 - 1]")
         if not (self.force_limit > 0):
             raise ScenarioError(
                 f"{prefix}.force_limit = {self.force_limit} is out of range: must be > 0 N")
