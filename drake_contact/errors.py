@@ -10,6 +10,11 @@ class ScenarioError(ValueError):
     ``environment.stiffness = -5.0 is out of range: must be > 0 N/m``.
     """
 
+    def __init__(self, message):
+        # A value as typed may hold a line break (a name 'a\nb'): it is shown
+        # escaped, so that the message stays one line.
+        super().__init__(str(message).replace("\r", "\\r").replace("\n", "\\n"))
+
 
 class SimulationDiverged(RuntimeError):
     """A run produced NaN or a force above the configured limit.

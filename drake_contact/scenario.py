@@ -187,8 +187,9 @@ class SimulationConfig:
         if not (np.isfinite(self.duration) and self.duration > 0):
             raise ScenarioError(
                 f"{prefix}.duration = {self.duration} is out of range: must be > 0 s")
-        if self.seed < 0:
-            raise ScenarioError(f"{prefix}.seed = {self.seed} is out of range: must be >= 0")
+        if not (0 <= self.seed < 2**64):
+            raise ScenarioError(f"{prefix}.seed = {self.seed} is out of range: "
+                                "must be in [0, 2**64 - 1]")
         if not (self.force_limit > 0):
             raise ScenarioError(
                 f"{prefix}.force_limit = {self.force_limit} is out of range: must be > 0 N")
@@ -340,7 +341,7 @@ def scenario_from_data(data: dict, *, source="scenario") -> Scenario:
     if options is None:
         options = {}
     scenario.controller.options = options
-    if isinstance(options, dict):
+    if isinstance(controller, dict) and isinstance(options, dict):
         controller["options"] = options  # the caller's mapping, unchanged
     for i, (entry, config) in enumerate(zip(identifiers, scenario.identifiers)):
         config.options = identifier_options[i] or {}

@@ -43,7 +43,8 @@ class ControllerModelConfig:
             if len(value) != 3 or not all(np.isfinite(x) and x > 0 for x in value):
                 raise ScenarioError(f"{prefix}.{field} = {value} is out of range: "
                                     "must be 3 values > 0")
-        if len(self.friction_levels) != 3 or not all(x >= 0 for x in self.friction_levels):
+        if len(self.friction_levels) != 3 or not all(
+                np.isfinite(x) and x >= 0 for x in self.friction_levels):
             raise ScenarioError(f"{prefix}.friction_levels = {self.friction_levels} is out of "
                                 "range: must be 3 values >= 0 N m")
         scale = self.motor_torque_scale

@@ -41,7 +41,10 @@ class ForceReferenceConfig:
         if not (self.half_period_s > 0):
             raise ScenarioError(f"{prefix}.half_period_s = {self.half_period_s} is out of range: "
                                 "must be > 0 s")
-        if not (np.isfinite(self.sine_amplitude_n) and self.sine_frequency_hz >= 0):
+        if not np.isfinite(self.sine_amplitude_n):
+            raise ScenarioError(f"{prefix}.sine_amplitude_n = {self.sine_amplitude_n} is out of "
+                                "range: must be finite (N)")
+        if not (np.isfinite(self.sine_frequency_hz) and self.sine_frequency_hz >= 0):
             raise ScenarioError(f"{prefix}.sine_frequency_hz = {self.sine_frequency_hz} is out of "
                                 "range: must be >= 0 Hz")
         if not (np.isfinite(self.hold_s) and self.hold_s >= 0):

@@ -71,7 +71,8 @@ import numpy as np
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Demultiplexer
 
-from drake_contact.plant.arm import CONTROL_PERIOD, DeclareSampledUpdate, is_sample_time
+from drake_contact.plant.arm import (
+    CONTROL_PERIOD, LINK_LENGTHS, DeclareSampledUpdate, is_sample_time)
 from drake_contact.control.controller_model import ArmModel, ControllerModelConfig
 from drake_contact.plant.planar_arm import solve3
 from drake_contact.errors import ScenarioError, require_finite
@@ -100,6 +101,11 @@ class ApproachConfig:
         if not (0 < self.step_m <= 0.01):
             raise ScenarioError(f"{prefix}.step_m = {self.step_m} is out of range: "
                                 "must be in (0, 0.01] m")
+        reach = sum(LINK_LENGTHS)
+        for field in ("start_x", "first_target_x"):
+            if not (abs(getattr(self, field)) <= reach):
+                raise ScenarioError(f"{prefix}.{field} = {getattr(self, field)} is out of range: "
+                                    f"must be in [-{reach:.4g}, {reach:.4g}] m (the arm's reach)")
 
 
 @dc.dataclass
@@ -163,6 +169,12 @@ class HybridControllerConfig:
             value = getattr(self, field)
             if not (np.isfinite(value) and value >= 0):
                 raise ScenarioError(f"{prefix}.{field} = {value} is out of range: must be >= 0")
+        if not (abs(self.y_desired) <= 0.1):
+            raise ScenarioError(f"{prefix}.y_desired = {self.y_desired} is out of range: "
+                                "must be in [-0.1, 0.1] m")
+        if not (abs(self.phi_desired) <= math.pi):
+            raise ScenarioError(f"{prefix}.phi_desired = {self.phi_desired} is out of range: "
+                                "must be in [-pi, pi] rad")
         if not (self.stiffness_estimate > 0):
             raise ScenarioError(f"{prefix}.stiffness_estimate = {self.stiffness_estimate} is out "
                                 "of range: must be > 0 N/m")

@@ -62,14 +62,19 @@ class NnIdentifierConfig:
         if not (0 < self.learning_rate < 1):
             raise ScenarioError(f"{prefix}.learning_rate = {self.learning_rate} is out of range: "
                                 "must be in (0, 1)")
-        if len(self.input_scale) != 3 or not all(x > 0 for x in self.input_scale):
+        if len(self.input_scale) != 3 or not all(np.isfinite(x) and x > 0
+                                                 for x in self.input_scale):
             raise ScenarioError(f"{prefix}.input_scale = {self.input_scale} is out of range: "
-                                "must be 3 values > 0")
-        if len(self.probe) != 3 or not all(x > 0 for x in self.probe):
+                                "must be 3 finite values > 0")
+        # The estimates divide by the probe point: a subnormal one overflows.
+        if len(self.probe) != 3 or not all(np.isfinite(x) and x >= 1e-9 for x in self.probe):
             raise ScenarioError(f"{prefix}.probe = {self.probe} is out of range: "
-                                "must be 3 values > 0 (m, m/s, m/s^2)")
-        if not (self.output_scale_n > 0 and self.initial_weight_std > 0):
-            raise ScenarioError(f"{prefix}.output_scale_n and initial_weight_std must be > 0")
+                                "must be 3 finite values >= 1e-09 (m, m/s, m/s^2)")
+        for field in ("output_scale_n", "initial_weight_std"):
+            value = getattr(self, field)
+            if not (np.isfinite(value) and value > 0):
+                raise ScenarioError(f"{prefix}.{field} = {value} is out of range: "
+                                    "must be finite and > 0")
 
 
 class ImpedanceNetwork:

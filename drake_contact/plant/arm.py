@@ -122,6 +122,9 @@ class ArmConfig:
             raise ScenarioError(
                 f"{prefix}.time_step = {h} is out of range: must be in (0, 0.001] s "
                 "and divide the 1 ms control period")
+        if h < 1e-6:
+            raise ScenarioError(f"{prefix}.time_step = {h} is out of range: must be >= 1e-06 s "
+                                "(at most 1000 plant steps per control period)")
         ratio = CONTROL_PERIOD / h
         if abs(ratio - round(ratio)) > 1e-9 * ratio:
             raise ScenarioError(

@@ -79,8 +79,8 @@ class EnvironmentConfig:
             bad("damping", self.damping, "must be >= 0 N s/m")
         if not (np.isfinite(self.mass) and self.mass >= 0):
             bad("mass", self.mass, "must be >= 0 kg")
-        if not np.isfinite(self.surface_x):
-            bad("surface_x", self.surface_x, "must be a finite position in m")
+        if not (abs(self.surface_x) <= 1):
+            bad("surface_x", self.surface_x, "must be in [-1, 1] m")
         if self.law not in CONTACT_LAWS:
             raise ScenarioError(
                 f"{prefix}.law = '{self.law}' is unknown: choose one of {', '.join(CONTACT_LAWS)}")
@@ -95,6 +95,8 @@ class EnvironmentConfig:
             bad("stiction_velocity", self.stiction_velocity, "must be > 0 m/s")
         if not (0 <= self.acceleration_smoothing < 1):
             bad("acceleration_smoothing", self.acceleration_smoothing, "must be in [0, 1)")
+        if not np.isfinite(self.stiffness_drift_per_s):
+            bad("stiffness_drift_per_s", self.stiffness_drift_per_s, "must be finite (1/s)")
         if duration is not None and 1 + self.stiffness_drift_per_s * duration <= 0:
             bad("stiffness_drift_per_s", self.stiffness_drift_per_s,
                 f"must keep K_e > 0 over the run: > {-1 / duration:.4g} 1/s")

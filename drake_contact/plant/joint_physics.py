@@ -79,9 +79,9 @@ class JointFrictionConfig:
         if self.model not in FRICTION_MODELS:
             raise ScenarioError(f"{prefix}.model = '{self.model}' is unknown: choose one of "
                                 f"{', '.join(FRICTION_MODELS)}")
-        if not (0 < self.bristle_frequency_hz < 200):
+        if not (0.1 <= self.bristle_frequency_hz < 200):
             raise ScenarioError(f"{prefix}.bristle_frequency_hz = {self.bristle_frequency_hz} "
-                                "is out of range: must be in (0, 200) Hz")
+                                "is out of range: must be in [0.1, 200) Hz")
         if not (0 < self.bristle_damping_ratio <= 2):
             raise ScenarioError(f"{prefix}.bristle_damping_ratio = {self.bristle_damping_ratio} "
                                 "is out of range: must be in (0, 2]")
@@ -104,9 +104,10 @@ class EncoderConfig:
 
     def validate(self, prefix="encoders"):
         c = self.counts_per_revolution
-        if len(c) != 3 or any(x < 0 for x in c):
+        if len(c) != 3 or any(not 0 <= x <= 2**30 for x in c):
             raise ScenarioError(
-                f"{prefix}.counts_per_revolution = {c} is out of range: must be 3 integers >= 0")
+                f"{prefix}.counts_per_revolution = {c} is out of range: must be 3 integers in "
+                "[0, 2**30]")
 
 
 def check_friction_stability(config: JointFrictionConfig, mass_matrix_diagonal, time_step):

@@ -55,10 +55,14 @@ class AntiAliasingConfig:
         if self.mode not in ANTI_ALIASING_MODES:
             raise ScenarioError(f"{prefix}.mode = '{self.mode}' is unknown: choose one of "
                                 f"{', '.join(ANTI_ALIASING_MODES)}")
-        for field in ("R1", "R2", "C1", "C2"):
+        # Components a circuit could have (the filter's discretization
+        # overflows for, e.g., a capacitor of 1e-300 F).
+        for field, low, high, unit in (("R1", 1e-3, 1e9, "ohm"), ("R2", 1e-3, 1e9, "ohm"),
+                                       ("C1", 1e-15, 1.0, "F"), ("C2", 1e-15, 1.0, "F")):
             value = getattr(self, field)
-            if not (np.isfinite(value) and value > 0):
-                raise ScenarioError(f"{prefix}.{field} = {value} is out of range: must be > 0")
+            if not (low <= value <= high):
+                raise ScenarioError(f"{prefix}.{field} = {value} is out of range: must be in "
+                                    f"[{low:g}, {high:g}] {unit}")
 
 
 @dc.dataclass
@@ -79,17 +83,17 @@ class DspConfig:
     def validate(self, prefix="dsp"):
         if not (2 <= self.adc_bits <= 24):
             raise ScenarioError(f"{prefix}.adc_bits = {self.adc_bits} is out of range: must be in 2..24")
-        if not (self.adc_range_v > 0):
+        if not (np.isfinite(self.adc_range_v) and self.adc_range_v > 0):
             raise ScenarioError(f"{prefix}.adc_range_v = {self.adc_range_v} is out of range: must be > 0 V")
-        if not (self.scale_n_per_v > 0):
+        if not (np.isfinite(self.scale_n_per_v) and self.scale_n_per_v > 0):
             raise ScenarioError(
                 f"{prefix}.scale_n_per_v = {self.scale_n_per_v} is out of range: must be > 0 N/V")
         if not (self.tare_window_s >= CONTROL_PERIOD):
             raise ScenarioError(f"{prefix}.tare_window_s = {self.tare_window_s} is out of range: "
                                 "must be >= 0.001 s")
-        if not (0 < self.force_filter_cutoff_hz < 500):
+        if not (0.01 <= self.force_filter_cutoff_hz < 500):
             raise ScenarioError(f"{prefix}.force_filter_cutoff_hz = {self.force_filter_cutoff_hz} "
-                                "is out of range: must be in (0, 500) Hz")
+                                "is out of range: must be in [0.01, 500) Hz")
         self.anti_aliasing.validate(f"{prefix}.anti_aliasing")
 
 

@@ -42,9 +42,9 @@ class EstimatorConfig:
     cutoff_hz: float = 35.0
 
     def validate(self, prefix="estimator"):
-        if not (0 < self.cutoff_hz < 500):
+        if not (0.01 <= self.cutoff_hz < 500):
             raise ScenarioError(
-                f"{prefix}.cutoff_hz = {self.cutoff_hz} is out of range: must be in (0, 500) Hz")
+                f"{prefix}.cutoff_hz = {self.cutoff_hz} is out of range: must be in [0.01, 500) Hz")
 
 
 def velocity_lag_s(cutoff_hz, frequency_hz, period=CONTROL_PERIOD):

@@ -97,31 +97,38 @@ class ForceSensorConfig:
         def bad(field, allowed):
             raise ScenarioError(f"{prefix}.{field} = {getattr(self, field)} is out of range: "
                                 f"{allowed}")
-        if not (0 < self.analog_cutoff_hz < self.fine_rate_hz / 10):
-            bad("analog_cutoff_hz", f"must be in (0, fine_rate_hz / 10 = {self.fine_rate_hz / 10}) Hz")
+        if not (0 < self.fine_rate_hz <= 100000):
+            bad("fine_rate_hz", "must be in (0, 100000] Hz (at most 100 ticks per 1 ms frame)")
+        if not (10 <= self.analog_cutoff_hz < self.fine_rate_hz / 10):
+            bad("analog_cutoff_hz", f"must be in [10, fine_rate_hz / 10 = {self.fine_rate_hz / 10}) Hz")
         if not (1 <= self.analog_order <= 8):
             bad("analog_order", "must be in 1..8")
-        if not (self.adc_rate_hz > 0):
-            bad("adc_rate_hz", "must be > 0 Hz")
+        if not (1 <= self.adc_rate_hz <= self.fine_rate_hz):
+            bad("adc_rate_hz", f"must be in [1, fine_rate_hz = {self.fine_rate_hz}] Hz")
         if not (2 <= self.adc_bits <= 24):
             bad("adc_bits", "must be in 2..24")
-        if len(self.adc_full_scale) != 3 or not all(x > 0 for x in self.adc_full_scale):
-            bad("adc_full_scale", "must be 3 values > 0 (N, N, N m)")
-        cal = np.asarray(self.calibration_matrix, dtype=float)
-        if cal.shape != (3, 3) or not np.all(np.isfinite(cal)):
+        if len(self.adc_full_scale) != 3 or not all(np.isfinite(x) and x >= 1e-6
+                                                    for x in self.adc_full_scale):
+            bad("adc_full_scale", "must be 3 finite values >= 1e-06 (N, N, N m)")
+        cal = self.calibration_matrix
+        if len(cal) != 3 or any(len(row) != 3 for row in cal) or not np.all(np.isfinite(cal)):
             bad("calibration_matrix", "must be a finite 3 x 3 matrix")
-        if len(self.noise_std) != 3 or not all(x >= 0 for x in self.noise_std):
-            bad("noise_std", "must be 3 values >= 0")
+        if len(self.noise_std) != 3 or not all(np.isfinite(x) and x >= 0 for x in self.noise_std):
+            bad("noise_std", "must be 3 finite values >= 0")
         if not (np.isfinite(self.noise_scale) and self.noise_scale >= 0):
             bad("noise_scale", "must be >= 0")
+        for field in ("offset_n", "offset_drift_n_per_s", "dac_glitch_n"):
+            if not np.isfinite(getattr(self, field)):
+                bad(field, "must be finite")
         if not (self.dac_glitch_duration_s > 0):
             bad("dac_glitch_duration_s", "must be > 0 s")
         if self.dac_glitch_duration_s >= 0.5 / self.adc_rate_hz:
-            bad("dac_glitch_duration_s", f"must be < half the ADC period, {0.5 / self.adc_rate_hz:.4g} s")
-        if not (0 < self.output_bandwidth_hz < self.fine_rate_hz / 2):
-            bad("output_bandwidth_hz", f"must be in (0, fine_rate_hz / 2) Hz")
-        if not (self.output_scale_n_per_v > 0):
-            bad("output_scale_n_per_v", "must be > 0 N/V")
+            bad("dac_glitch_duration_s", "must be < half the ADC period, 0.5 / adc_rate_hz = "
+                f"{0.5 / self.adc_rate_hz:.4g} s")
+        if not (1 <= self.output_bandwidth_hz < self.fine_rate_hz / 2):
+            bad("output_bandwidth_hz", "must be in [1, fine_rate_hz / 2) Hz")
+        if not (np.isfinite(self.output_scale_n_per_v) and self.output_scale_n_per_v >= 1e-6):
+            bad("output_scale_n_per_v", "must be finite and >= 1e-06 N/V")
         for rate, name in ((self.adc_rate_hz, "adc_rate_hz"), (1000.0, "the 1 kHz DSP rate")):
             ratio = self.fine_rate_hz / rate
             if not (self.fine_rate_hz > 0) or abs(ratio - round(ratio)) > 1e-9 * ratio:
@@ -213,11 +220,9 @@ class ForceSensor(LeafSystem):
         xo0 = np.linalg.solve(np.eye(2) - Ao, Bo[:, 0] * v0)
         self._internal = self.DeclareDiscreteState(
             np.concatenate([np.zeros(self._nx), [v0, 0.0], xo0]))
-        # The frame plans of every tick phase and every glitch carry an
-        # update can leave (others are made when met).
-        self._plans = {(phase, left): self._plan(phase, left)
-                       for phase in range(self._adc_every)
-                       for left in range(self._glitch_ticks + 1)}
+        # The frame plans by tick phase and glitch carry, each made when first
+        # met (not all up front: a slow ADC with a long glitch has millions).
+        self._plans = {}
         self.DeclarePeriodicDiscreteUpdateEvent(CONTROL_PERIOD, 0.0, self._update)
         self.DeclareStateOutputPort("voltage", self._voltage)
         self.DeclareStateOutputPort("voltage_frame", self._frame)
@@ -301,7 +306,7 @@ class ForceSensor(LeafSystem):
         key = (first_tick % self._adc_every, glitch_left)
         plan = self._plans.get(key)
         if plan is None:
-            plan = self._plan(*key)
+            plan = self._plans[key] = self._plan(*key)
         adc_ticks, glitch, glitch_left = plan
         # The DAC over the frame: the held value, replaced at each ADC tick,
         # plus the update glitch (glitch + held is held + glitch: commutative).
