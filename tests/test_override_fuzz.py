@@ -35,6 +35,8 @@ from drake_contact.identification.identifiers import SIGNALS
 from drake_contact.plant.arm import CONTROL_PERIOD
 from drake_contact.plant.compliant_wall import CONTACT_LAWS as WALL_LAWS
 from drake_contact.plant.joint_physics import FRICTION_MODELS
+from drake_contact.control.safety_supervisor import CONTACT_LOSS_REACTIONS
+from drake_contact.faults import FAULT_KINDS, START_FROM
 from drake_contact.plugins import installed_controllers, installed_identifiers
 from drake_contact.scenario import Scenario, dump_scenario, load_scenario
 from drake_contact.sensing.dsp import ANTI_ALIASING_MODES
@@ -83,6 +85,7 @@ UNKNOWN_KEYS = ("environment.stifness", "bogus", "simulation.duration.x",
 #: Every name a string field accepts somewhere, so that overrides also pass.
 NAMES = sorted({*installed_controllers(), *installed_identifiers(), *WALL_LAWS, *HYBRID_LAWS,
                 *FRICTION_MODELS, *ANTI_ALIASING_MODES, *OUTPUT_LAYERS, *SIGNALS,
+                *FAULT_KINDS, *START_FROM, *CONTACT_LOSS_REACTIONS,
                 *(d for h, d in LEAVES.values() if h is str)})
 
 SPECIAL_FLOATS = (0.0, -0.0, -1.0, 1e300, -1e300, 1e12, -1e12, 1e-300, 5e-324, math.nan,
@@ -328,7 +331,8 @@ def test_the_fuzz_reaches_every_leaf_and_both_outcomes():
     schema), and the property can fail both ways."""
     assert {"simulation.duration", "environment.stiffness", "torque_limits", "identifiers",
             "controller.options", "controller.hybrid.approach.step_m",
-            "dsp.anti_aliasing.mode"} <= set(LEAVES)
+            "dsp.anti_aliasing.mode", "faults", "safety.enabled",
+            "safety.force_limit_n"} <= set(LEAVES)
     assert "controller.options.stiffness_x" in OPTION_LEAVES
     assert run_one_step("push_constant", ["environment.stiffness=6.2e4"])
     with pytest.raises(ScenarioError) as info:
