@@ -264,8 +264,12 @@ class Scenario:
 
 
 def _looks_like_yaml(text) -> bool:
-    return isinstance(text, str) and ("\n" in text or ":" in text.split("#")[0]) \
-        and not Path(text).is_file()
+    if not (isinstance(text, str) and ("\n" in text or ":" in text.split("#")[0])):
+        return False
+    try:
+        return not Path(text).is_file()
+    except OSError:  # e.g. longer than any path can be: a whole scenario's text
+        return True
 
 
 def resolve_scenario_path(name_or_path) -> Path:
