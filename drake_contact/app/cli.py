@@ -75,11 +75,7 @@ def _build_parser():
         "sweep", help="run a parameter sweep on a Dask cluster; write results.csv, maps, sweep.html")
     sweep.add_argument("sweep", help="a sweep file, or a bundled sweep's name")
     sweep.add_argument("--out", required=True, help="output folder (rerun it to resume)")
-    where = sweep.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=int,
-                       help="worker processes of a local cluster (default: one per core)")
-    where.add_argument("--scheduler", metavar="ADDRESS",
-                       help="a running Dask scheduler, e.g. tcp://10.0.0.5:8786")
+    _add_cluster_arguments(sweep)
     sweep.add_argument("--quick", action="store_true",
                        help="the sweep's short version (its quick: section)")
     benchmark = commands.add_parser(
@@ -93,11 +89,7 @@ def _build_parser():
                            help="also benchmark identifiers, side by side under nn_robust "
                                 "(all: every one)")
     benchmark.add_argument("--suite", default="standard", help="quick or standard (default)")
-    where = benchmark.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=int,
-                       help="worker processes of a local cluster (default: one per core)")
-    where.add_argument("--scheduler", metavar="ADDRESS",
-                       help="a running Dask scheduler, e.g. tcp://10.0.0.5:8786")
+    _add_cluster_arguments(benchmark)
     faults = commands.add_parser(
         "faults", help="every fault kind against the controllers, supervisor off and on, on a "
                        "Dask cluster; write faults.md, faults.csv, runs.csv")
@@ -105,12 +97,17 @@ def _build_parser():
     faults.add_argument("--controllers", metavar="A,B,...",
                         help="contenders (default: hybrid, nn, nn_robust, adaptive_hybrid)")
     faults.add_argument("--suite", default="standard", help="quick or standard (default)")
-    where = faults.add_mutually_exclusive_group()
+    _add_cluster_arguments(faults)
+    return parser
+
+
+def _add_cluster_arguments(command):
+    """--workers N or --scheduler ADDRESS: where the Dask points run."""
+    where = command.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int,
                        help="worker processes of a local cluster (default: one per core)")
     where.add_argument("--scheduler", metavar="ADDRESS",
                        help="a running Dask scheduler, e.g. tcp://10.0.0.5:8786")
-    return parser
 
 
 def _cmd_faults(args):

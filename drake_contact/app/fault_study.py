@@ -25,7 +25,6 @@ over the walls, the runs past the limit, the runs recovered and the median
 recovery time, the runs that ended safe.
 """
 
-import csv
 import dataclasses as dc
 import time
 from pathlib import Path
@@ -33,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from drake_contact.app.benchmark import contender_names, contender_scenario
+from drake_contact.app.benchmark import _write_csv, contender_names, contender_scenario
 from drake_contact.app.sweep import finished_metrics, run_points
 from drake_contact.errors import ScenarioError
 
@@ -224,15 +223,6 @@ def markdown(table, contenders, suite: Suite, wall_s=None) -> str:
                 cells.append(_cell(e))
         lines.append(f"| {case}: {CASES[case][0]} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
-
-
-def _write_csv(rows, path: Path, first):
-    columns = list(first) + sorted({k for r in rows for k in r} - set(first))
-    with path.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=columns)
-        writer.writeheader()
-        for row in rows:
-            writer.writerow({k: "" if row.get(k) is None else row.get(k) for k in columns})
 
 
 @dc.dataclass
