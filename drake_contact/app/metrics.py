@@ -438,7 +438,8 @@ def fault_metrics(log: dict, scenario: Scenario) -> dict:
             runs = np.convolve(ok.astype(int), np.ones(hold, dtype=int), mode="valid")
             starts = np.flatnonzero(runs == hold)
             if len(starts):
-                entry["recovery_s"] = float(t[starts[0]] - end)
+                # to the microsecond: t - end is a difference of sample times
+                entry["recovery_s"] = round(float(t[starts[0]] - end), 6)
         entries.append(entry)
     return {"faults": entries}
 
