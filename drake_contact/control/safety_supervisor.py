@@ -7,8 +7,8 @@ through unless one of these acts, checked in this order every 1 ms:
 
 1. **Safe stop** (latched: the run ends held still). Fires on a non-finite
    controller torque, a filtered force above ``force_limit_n`` for
-   ``force_stop_samples`` samples, a tip speed
-   above ``tip_speed_limit_m_s`` (after ``speed_check_from_s``), or a sensor fault that lasts longer than
+   ``force_stop_samples`` samples, a tip speed above ``tip_speed_limit_m_s``
+   (after ``speed_check_from_s``), or a sensor fault that lasts longer than
    ``sensor_fault_stop_s``. The arm is held by a joint PD
    (``stop_stiffness``, ``stop_damping``) at the joint angles that put the
    tip ``stop_backoff_m`` back along -x from where it was then, the
@@ -24,8 +24,8 @@ through unless one of these acts, checked in this order every 1 ms:
    not the force; a torque held without feedback lets the light wrist run
    away, 3 rad/s within 0.2 s, measured).
 3. **Contact loss** (``contact_loss: hold``, the default; ``approach``
-   leaves it to the controller): after the first contact, a filtered force below
-   ``contact_loss_force_n`` for ``contact_loss_time_s``. The arm is held by
+   leaves it to the controller): after the first contact, a filtered force
+   below ``contact_loss_force_n`` for ``contact_loss_time_s``. The arm is held by
    the joint PD where it was, until the measured force is back above
    ``contact_force_n`` (the surface came back to the held tip).
 4. **Force reflex**: the filtered force above ``reflex_fraction`` of the
@@ -35,7 +35,9 @@ through unless one of these acts, checked in this order every 1 ms:
 5. **Push clamp** (always, sensor-free): the normal force the controller's
    torque commands, F = J(q)^-T tau, is clamped along +x to
    ``push_clamp_fraction`` of the limit. A biased, scaled, saturated or dead
-   sensor can make a force loop push without bound; this cannot.
+   sensor can make a force loop push without bound; the clamp bounds the
+   push it commands (not what the wall's own dynamics add: a K_e that
+   doubles doubles the force within the step).
 
 Last, each joint's torque may change by at most ``torque_rate_limit`` (N m/s)
 per sample (0: no limit). Every decision is logged as ``safety_state``
