@@ -185,6 +185,11 @@ class SafetySupervisorLaw(LeafSystem):
         super().__init__()
         config.validate()
         self._config = config
+        # Per-sample constants, as arrays once rather than every sample.
+        self._kp = np.asarray(config.stop_stiffness, dtype=float)
+        self._kd = np.asarray(config.stop_damping, dtype=float)
+        rate = np.asarray(config.torque_rate_limit, dtype=float) * CONTROL_PERIOD
+        self._rate_per_sample = rate if np.any(rate > 0) else None
         self._tau = self.DeclareVectorInputPort("joint_torque_commanded", 3)
         self._force = self.DeclareVectorInputPort("force", 1)
         self._force_raw = self.DeclareVectorInputPort("force_raw", 1)
@@ -260,11 +265,10 @@ class SafetySupervisorLaw(LeafSystem):
                 dq = solve3(tip_jacobian([float(x) for x in q]), [-c.stop_backoff_m, 0.0, 0.0])
                 out[_Q_HOLD] = q + np.array(dq)
             state = STOPPED
-            tau = self._pd(out[_Q_HOLD], q, qdot, c.stop_stiffness, c.stop_damping)
+            tau = self._pd(out[_Q_HOLD], q, qdot)
         elif sensor_fault:
             state = SENSOR_HOLD
-            tau = out[_TAU_GOOD] + self._pd(out[_Q_GOOD], q, qdot, c.stop_stiffness,
-                                            c.stop_damping)
+            tau = out[_TAU_GOOD] + self._pd(out[_Q_GOOD], q, qdot)
         elif c.contact_loss == "hold" and (state == LOSS_HOLD and f <= c.contact_force_n or
                                            loss_t > -np.inf and
                                            t - loss_t >= c.contact_loss_time_s - 1e-9):
@@ -272,7 +276,7 @@ class SafetySupervisorLaw(LeafSystem):
                 out[_Q_HOLD] = q
             state = LOSS_HOLD
             loss_t = -np.inf
-            tau = self._pd(out[_Q_HOLD], q, qdot, c.stop_stiffness, c.stop_damping)
+            tau = self._pd(out[_Q_HOLD], q, qdot)
         else:
             reflex = t - reflex_t <= c.reflex_hold_s + 1e-9
             push_max = (c.reflex_push_fraction if reflex else c.push_clamp_fraction) * limit
@@ -290,8 +294,8 @@ class SafetySupervisorLaw(LeafSystem):
             else:
                 tau = np.array(tau_cmd, dtype=float)
             state = REFLEX if reflex else CLAMPED if clamped else PASS
-        rate = np.asarray(c.torque_rate_limit) * CONTROL_PERIOD
-        if np.any(rate > 0) and t > CONTROL_PERIOD / 2:
+        rate = self._rate_per_sample
+        if rate is not None and t > CONTROL_PERIOD / 2:
             step = np.where(rate > 0, np.clip(tau - held[_TAU], -rate, rate), tau - held[_TAU])
             tau = held[_TAU] + step
         out[_TAU] = tau
@@ -306,9 +310,9 @@ class SafetySupervisorLaw(LeafSystem):
         out[_REASON] = reason
         output.SetFromVector(out)
 
-    @staticmethod
-    def _pd(q_hold, q, qdot, kp, kd):
-        return np.asarray(kp) * (q_hold - q) - np.asarray(kd) * qdot
+    def _pd(self, q_hold, q, qdot):
+        """The joint PD of a hold or a stop about ``q_hold``."""
+        return self._kp * (q_hold - q) - self._kd * qdot
 
 
 class SafetySupervisor(Diagram):
