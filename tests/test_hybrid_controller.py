@@ -9,6 +9,7 @@ import pytest
 import thesis_closed_forms as thesis
 from drake_contact.plant.arm import FIRST_SAMPLE_S, THESIS_Q0, ApplySampledUpdates
 from drake_contact.control.force_reference import ForceReferenceConfig
+from drake_contact.errors import ScenarioError
 from drake_contact.control.hybrid_controller import (
     HybridControlLaw, HybridController, HybridControllerConfig)
 
@@ -216,3 +217,30 @@ def test_force_integral_band_sums_only_small_errors():
     np.testing.assert_array_equal(inside, summed)
     np.testing.assert_allclose(outside, never, rtol=1e-12, atol=1e-12)
     assert not np.allclose(summed, never)
+
+
+def test_force_reference_probe_is_a_bounded_schroeder_multisine_in_contact_only():
+    plain = ForceReferenceConfig(levels=[20.0, 10.0], half_period_s=2.5)
+    probed = dc.replace(plain, probe_amplitude_n=3.0, probe_frequencies_hz=[1.0, 4.0])
+    # Two components of 1.5 N, phases 0 and -pi k (k - 1) / N = -pi.
+    for t in (0.0, 0.1, 0.37, 2.6, 7.3):
+        expected = plain.at(t) + 1.5 * (np.sin(2 * np.pi * t) + np.sin(8 * np.pi * t - np.pi))
+        assert probed.at(t) == pytest.approx(expected, abs=1e-12)
+    assert probed.at(-0.5) == 20.0                       # before contact: the first level
+    t = np.arange(0.0, 60.0, 1e-3)
+    bounded = dc.replace(plain, levels=[20.0], probe_amplitude_n=3.0)
+    deviation = np.array([bounded.at(x) for x in t]) - 20.0
+    assert np.abs(deviation).max() <= 3.0 and np.abs(deviation).max() > 1.0
+    assert abs(deviation.mean()) < 0.05                  # no bias on the force held
+
+
+@pytest.mark.parametrize("field, value", [("probe_amplitude_n", -1.0),
+                                          ("probe_amplitude_n", float("nan")),
+                                          ("probe_amplitude_n", 11.0),
+                                          ("probe_frequencies_hz", []),
+                                          ("probe_frequencies_hz", [0.0]),
+                                          ("probe_frequencies_hz", [float("inf")])])
+def test_force_reference_probe_fields_are_validated(field, value):
+    config = dc.replace(ForceReferenceConfig(), **{field: value})
+    with pytest.raises(ScenarioError, match=f"force_reference.{field} = .* is out of range"):
+        config.validate()

@@ -89,15 +89,18 @@ def test_step_delay_and_rise_time_are_the_documented_ones():
         assert measured[name][1] * 1e3 == pytest.approx(rise_ms, abs=0.1)
 
 
-def test_nominal_force_chain_of_the_matched_identifiers_has_the_chain_s_delay():
+@pytest.mark.parametrize("output", ["force_filtered", "force_measured"])
+def test_nominal_force_chain_of_the_matched_identifiers_has_the_chain_s_delay(output):
     """The identifiers' ``matched`` signals model the chain as a 1 kHz linear
-    filter (identification.nominal_force_chain); its step response crosses
-    50 % and rises 10-90 % within half a sample of the simulated chain's."""
+    filter (identification.nominal_force_chain), ``raw_matched`` the chain
+    without the DSP's filter; each step response crosses 50 % and rises
+    10-90 % within half a sample of the simulated chain's."""
     from scipy import signal
 
     from drake_contact.sensing.dsp import DspConfig
     from drake_contact.identification.identifiers import nominal_force_chain
-    b, a = nominal_force_chain(ForceSensorConfig(), DspConfig())
+    b, a = nominal_force_chain(ForceSensorConfig(),
+                               DspConfig() if output == "force_filtered" else None)
     t = np.arange(0.0, 0.1, 1e-3)
     f = 20.0 * signal.lfilter(b, a, np.ones_like(t))
     assert f[-1] == pytest.approx(20.0, rel=1e-6)
@@ -105,7 +108,7 @@ def test_nominal_force_chain_of_the_matched_identifiers_has_the_chain_s_delay():
     def crossing(level):
         i = np.argmax(f >= level)
         return t[i - 1] + (level - f[i - 1]) / (f[i] - f[i - 1]) * 1e-3
-    measured_delay, measured_rise = step_response()["force_filtered"]
+    measured_delay, measured_rise = step_response()[output]
     # The step in the simulation lands between samples: compare up to half a sample.
     assert crossing(10.0) == pytest.approx(measured_delay, abs=0.6e-3)
     assert crossing(18.0) - crossing(2.0) == pytest.approx(measured_rise, abs=0.6e-3)

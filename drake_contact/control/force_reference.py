@@ -8,6 +8,21 @@ square-wave cycle (its counter resets every 5 s). Before contact f_d is the
 first level. The option ``hold_s`` (ours, for the ``adaptive_hybrid``
 scenario) holds the first level for that long after contact before the
 cycle starts (its clock then starts at 0).
+
+The option ``probe_amplitude_n`` (ours, issue 16) adds a small probing
+signal in contact, for identification: a multisine over
+``probe_frequencies_hz`` with Schroeder's phases (M. R. Schroeder, "Synthesis
+of low-peak-factor signals and binary sequences with low autocorrelation",
+IEEE Trans. Information Theory 16(1):85-89, 1970), each of the N components
+of amplitude A / N, so that |probe| <= A whatever the frequencies:
+
+    probe(tau) = A / N sum_k sin(2 pi f_k tau + phi_k),
+    phi_k = -pi k (k - 1) / N,  k = 1..N,
+
+with tau the time since the first contact. Its steady force rises and falls
+with the wall's speed (B_e) and acceleration (M_e) as well as its
+displacement (K_e), so that the identifiers see more than the ~100 ms
+switch transient; see the README for what it buys and costs.
 """
 
 import dataclasses as dc
@@ -33,6 +48,11 @@ class ForceReferenceConfig:
     # Hold the first level (no sine) for this long after contact before the
     # cycle starts (s); 0 = the thesis's schedule.
     hold_s: float = 0.0
+    # Probing multisine in contact (ours, issue 16): its bound A (N; 0 = off)
+    # and frequencies (Hz); see the module doc.
+    probe_amplitude_n: float = 0.0
+    probe_frequencies_hz: list[float] = dc.field(
+        default_factory=lambda: [1.7])
 
     def validate(self, prefix="force_reference"):
         if not self.levels or not all(np.isfinite(x) and x >= 0 for x in self.levels):
@@ -49,12 +69,32 @@ class ForceReferenceConfig:
                                 "range: must be >= 0 Hz")
         if not (np.isfinite(self.hold_s) and self.hold_s >= 0):
             raise ScenarioError(f"{prefix}.hold_s = {self.hold_s} is out of range: must be >= 0 s")
+        if not (np.isfinite(self.probe_amplitude_n) and 0 <= self.probe_amplitude_n <= 10):
+            raise ScenarioError(f"{prefix}.probe_amplitude_n = {self.probe_amplitude_n} is out of "
+                                "range: must be in [0, 10] N")
+        if not (1 <= len(self.probe_frequencies_hz) <= 20 and all(
+                np.isfinite(x) and 0 < x <= 100 for x in self.probe_frequencies_hz)):
+            raise ScenarioError(f"{prefix}.probe_frequencies_hz = {self.probe_frequencies_hz} is "
+                                "out of range: must be 1 to 20 frequencies in (0, 100] Hz")
+
+    def probe(self, since_contact):
+        """The probing multisine (N) at ``since_contact`` s after contact."""
+        n = len(self.probe_frequencies_hz)
+        return self.probe_amplitude_n / n * sum(
+            np.sin(2 * np.pi * f * since_contact - np.pi * k * (k - 1) / n)
+            for k, f in enumerate(self.probe_frequencies_hz, start=1))
 
     def at(self, since_contact):
         """f_d (N) at ``since_contact`` seconds after the first contact
         (negative: before contact)."""
         if since_contact < 0:
             return self.levels[0]
+        if self.probe_amplitude_n:
+            return self._at(since_contact) + self.probe(since_contact)
+        return self._at(since_contact)
+
+    def _at(self, since_contact):
+        """f_d without the probe, in contact."""
         if self.hold_s:
             if since_contact < self.hold_s - 1e-9:
                 return self.levels[0]

@@ -20,6 +20,19 @@ over-estimates K_e (by about f_switch / (f - f_switch), +33 % at 20 N). The
 option ``force_offset`` adds a constant to the regressor, phi = (xe'', xe',
 xe, 1), theta = (M_e, B_e, K_e, f_0), which removes it. The thesis's form
 stays the default.
+
+The option ``stiffness_drift`` q (ours, issue 16) lets K_e change in time
+the way a Kalman filter does (L. Ljung and S. Gunnarsson, "Adaptation and
+tracking in system identification - a survey", Automatica 26(1):7-21,
+1990, section 3): K_e is modelled as a random walk whose step per sample
+has variance q K_e^2 (relative, so the same q serves any wall; K_e is the
+current estimate), and each update adds it to P:
+
+    P[K, K] += q theta_K^2
+
+Unlike lambda < 1, which discounts every parameter and multiplies P by
+1/lambda per sample while the arm rests (windup), it lets only K_e move,
+and at rest P_KK grows linearly, not exponentially.
 """
 
 import dataclasses as dc
@@ -43,6 +56,9 @@ class RlsConfig:
     forgetting_factor: float = 1.0
     # Add a force offset f_0 to the regressor (removes the switch-point bias).
     force_offset: bool = False
+    # Relative random-walk variance of K_e per sample (see the module doc);
+    # 0 = a constant K_e (the thesis).
+    stiffness_drift: float = 0.0
 
     def validate(self, prefix):
         if len(self.theta0) != 3 or not all(np.isfinite(self.theta0)):
@@ -53,6 +69,9 @@ class RlsConfig:
         if not (0 < self.forgetting_factor <= 1):
             raise ScenarioError(f"{prefix}.forgetting_factor = {self.forgetting_factor} is out "
                                 "of range: must be in (0, 1]")
+        if not (0 <= self.stiffness_drift <= 1e-3):
+            raise ScenarioError(f"{prefix}.stiffness_drift = {self.stiffness_drift} is out of "
+                                "range: must be in [0, 1e-3] (a relative variance per sample)")
 
 
 class RlsEstimator:
@@ -61,21 +80,25 @@ class RlsEstimator:
     def __init__(self, config: RlsConfig):
         self.n = 4 if config.force_offset else 3
         self.lam = config.forgetting_factor
+        self.drift = config.stiffness_drift
         self.theta = np.array(list(config.theta0) + [0.0] * (self.n - 3), dtype=float)
         self.P = np.diag(np.asarray(config.p0[:self.n], dtype=float))
 
     @staticmethod
-    def step(theta, P, phi, f, lam):
+    def step(theta, P, phi, f, lam, drift=0.0):
         """One update; returns (theta, P)."""
         P_phi = P @ phi
         gain = P_phi / (lam + phi @ P_phi)
         theta = theta + gain * (f - phi @ theta)
         P = (P - np.outer(gain, P_phi)) / lam
-        return theta, 0.5 * (P + P.T)
+        P = 0.5 * (P + P.T)
+        if drift:
+            P[2, 2] += drift * theta[2] * theta[2]
+        return theta, P
 
     def update(self, xe, xe_dot, xe_ddot, f):
         phi = np.array([xe_ddot, xe_dot, xe, 1.0][:self.n])
-        self.theta, self.P = self.step(self.theta, self.P, phi, f, self.lam)
+        self.theta, self.P = self.step(self.theta, self.P, phi, f, self.lam, self.drift)
         return self.theta
 
 
@@ -108,6 +131,7 @@ class RlsIdentifier(LeafSystem):
         DeclareSampledUpdate(self, self._update)
         self.DeclareStateOutputPort("impedance", self._impedance)
         self._lam = config.forgetting_factor
+        self._drift = config.stiffness_drift
         # Work buffers of one sample's step (see _update).
         n = self._n
         self._values = np.empty(n + n * n)             # the state [theta, P.ravel()] read
@@ -146,5 +170,7 @@ class RlsIdentifier(LeafSystem):
         np.divide(B, lam, out=B)
         np.add(B, self._B_transposed, out=self._new_P)
         np.multiply(self._new_P, 0.5, out=self._new_P)
+        if self._drift:
+            self._new_P[2, 2] += self._drift * self._new_theta[2] * self._new_theta[2]
         state.get_mutable_value(self._i_state)[:] = self._new
         state.get_mutable_value(self._i_impedance)[:] = self._new_impedance
