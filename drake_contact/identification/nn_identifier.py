@@ -39,6 +39,7 @@ from drake_contact.plant.arm import CONTROL_PERIOD, DeclareSampledUpdate
 from drake_contact.errors import ScenarioError
 
 HIDDEN = 4
+OUTPUT_LAYERS = ("linear", "appendix_e")
 
 
 @dc.dataclass
@@ -57,6 +58,11 @@ class NnIdentifierConfig:
     force_offset: bool = False
     # Standard deviation of the seeded initial weights.
     initial_weight_std: float = 0.3
+    # Output layer: linear, f_hat = S (v . [1, f(h)]) (ours, the default), or
+    # appendix_e, f_hat = S f(v . [1, h]) with the update of the text's
+    # network, as Appendix E codes its controller's network (see
+    # AppendixEImpedanceNetwork).
+    output_layer: str = "linear"
 
     def validate(self, prefix):
         if not (0 < self.learning_rate < 1):
@@ -75,6 +81,9 @@ class NnIdentifierConfig:
             if not (np.isfinite(value) and value > 0):
                 raise ScenarioError(f"{prefix}.{field} = {value} is out of range: "
                                     "must be finite and > 0")
+        if self.output_layer not in OUTPUT_LAYERS:
+            raise ScenarioError(f"{prefix}.output_layer = '{self.output_layer}' is unknown: "
+                                f"choose one of {', '.join(OUTPUT_LAYERS)}")
 
 
 class ImpedanceNetwork:
@@ -193,6 +202,62 @@ class ImpedanceNetwork:
         return rng.normal(0.0, self.c.initial_weight_std, self.size)
 
 
+class AppendixEImpedanceNetwork(ImpedanceNetwork):
+    """The network with the output layer of Appendix E's code (its
+    controller's network; section 5.2 says the identifier's works the same
+    way): the output neuron sums the hidden *pre-activations* h and is a
+    bipolar sigmoid scaled to S (the code's ``st1 = 40/(1+exp(-t1)) - 20``,
+    S = 20 N), while the update uses the activations f(h) as the text's
+    network would:
+
+        t = v . [1, h],   f_hat = S f(t)
+        d = e S f'(t),    f'(t) = (1 - f(t)^2) / 2
+        W += eta outer(d v_1: f'(h), [1, u])     (v before its step)
+        v += eta d [1, f(h)]
+
+    The output cannot leave (-S, S): a wall force beyond S is learnt only
+    as saturation.
+    """
+
+    def _forward(self, weights, x0, x1, x2):
+        u1 = self._u1
+        s0, s1, s2 = self._scale
+        u1[1] = s0 * x0
+        u1[2] = s1 * x1
+        u1[3] = s2 * x2
+        W = weights[:self._SPLIT].reshape(HIDDEN, 4)
+        np.dot(W, u1, out=self._pre)
+        t = weights[self._SPLIT] + float(np.dot(weights[self._SPLIT + 1:], self._pre))
+        self._f(self._pre.copy(), self._hidden)
+        return self._S * (2.0 / (1.0 + np.exp(-t)) - 1.0)
+
+    def _train(self, weights, x0, x1, x2, f, out):
+        f_hat = self._forward(weights, x0, x1, x2)
+        q = f_hat / self._S
+        d = (f - f_hat) * self._S * 0.5 * (1.0 - q * q)
+        v1 = weights[self._SPLIT + 1:]
+        hidden = self._hidden
+        back = d * v1 * 0.5 * (1.0 - hidden * hidden)
+        out[:self._SPLIT] = weights[:self._SPLIT] + self._eta * np.outer(back, self._u1).ravel()
+        out[self._SPLIT:] = weights[self._SPLIT:] + self._eta * d * self._h1
+        return f_hat
+
+    def _impedance(self, weights):
+        W = weights[:self._SPLIT].reshape(HIDDEN, 4)
+        v0, v1, S = weights[self._SPLIT], weights[self._SPLIT + 1:], self._S
+        f_x, f_xv, f_xva = (S * (2.0 / (1.0 + np.exp(-(v0 + np.dot(v1, W @ u)))) - 1.0)
+                            for u in self._probe_inputs)
+        xs, vs, acc = self.c.probe
+        return (f_xva - f_xv) / acc, (f_xv - f_x) / vs, f_x / xs
+
+
+def make_network(config: NnIdentifierConfig) -> ImpedanceNetwork:
+    """The network for ``config.output_layer``."""
+    if config.output_layer == "appendix_e":
+        return AppendixEImpedanceNetwork(config)
+    return ImpedanceNetwork(config)
+
+
 class NnIdentifier(LeafSystem):
     """The neural identifier, trained every 1 ms after the first switch.
 
@@ -206,7 +271,7 @@ class NnIdentifier(LeafSystem):
 
     def __init__(self, config: NnIdentifierConfig, seed: int):
         super().__init__()
-        self._net = ImpedanceNetwork(config)
+        self._net = make_network(config)
         weights = self._net.initial_weights(seed)
         self._force = self.DeclareVectorInputPort("force", 1)
         self._pose = self.DeclareVectorInputPort("tip_pose", 3)
