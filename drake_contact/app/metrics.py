@@ -17,6 +17,13 @@ None where the truth is 0 or the log ends sooner).
 ``stiffness_ratio`` is the thesis's "measured" stiffness f / xe from the
 filtered force and the estimated displacement since the switch.
 
+Time-varying environments (a K_e or B_e that changes after the switch, e.g.
+the ``stiffness_ramp`` and ``stiffness_step`` faults): ``identification_tracking_<name>``
+scores each identifier against the *current* truth at every sample from
+``TRACKING_START_S`` (1 s) after the switch to the end of the run (see
+:func:`identification_tracking`). It is emitted only when the truth changes
+after the switch, so runs on a constant wall keep their metrics.
+
 Stability (for parameter sweeps), in runs with a ``mode`` log:
 ``contact_losses`` counts the controller's returns from contact (mode 1) to
 approach (mode 0), all of which follow the first switch;
@@ -62,6 +69,12 @@ STABLE_RMSE_N = 2.0
 #: ``identification_error_1s_<name>`` scores the estimate this long after
 #: the switch (s).
 EARLY_IDENTIFICATION_S = 1.0
+
+#: ``identification_tracking_<name>`` scores from this long after the
+#: switch (s), and counts a change of the truth by more than
+#: TRACKING_STEP_MIN (relative) between two samples as a step.
+TRACKING_START_S = 1.0
+TRACKING_STEP_MIN = 0.01
 
 
 def compute_metrics(scenario: Scenario, log: dict, wall_s: float) -> dict:
@@ -346,11 +359,87 @@ def identification_metrics(log: dict, identifiers) -> dict:
         for tolerance, key in ((SETTLE_TOLERANCE, f"identification_time_{config.name}_s"),
                                (SETTLE_TOLERANCE_NN, f"identification_time_10pct_{config.name}_s")):
             out[key] = settling_time(t, est[:, 2] / log["true_impedance"][:, 2], after, tolerance)
+    out.update(identification_tracking(log, identifiers, t_contact))
     ratio = log.get("stiffness_ratio")
     if ratio is not None:
         late = (t >= t[-1] - 1.0) & np.isfinite(ratio)
         if late.any():
             out["stiffness_ratio_final_n_per_m"] = float(np.mean(ratio[late]))
+    return out
+
+
+def _tracking_errors(relative_error, tolerance):
+    """max |e|, RMS of e and the fraction of samples with |e| < tolerance;
+    max and RMS None if any sample is not finite (it then counts as
+    outside)."""
+    finite = bool(np.all(np.isfinite(relative_error)))
+    with np.errstate(invalid="ignore"):
+        within = np.abs(relative_error) < tolerance
+    return (float(np.max(np.abs(relative_error))) if finite else None,
+            float(np.sqrt(np.mean(relative_error**2))) if finite else None,
+            float(np.mean(within)))
+
+
+def identification_tracking(log: dict, identifiers, t_contact: float) -> dict:
+    """How each identifier follows an environment that changes after the
+    switch: ``identification_tracking_<name>``, a dict over the samples from
+    ``TRACKING_START_S`` after the switch ``t_contact`` to the end, the
+    relative errors taken against the truth at the same sample:
+
+        stiffness_max_abs_error   max |K_est / K_e - 1|
+        stiffness_rms_error       RMS of K_est / K_e - 1
+        stiffness_within_5pct     fraction of the samples with |.| < 5 %
+        damping_max_abs_error, damping_rms_error, damping_within_5pct
+                                  the same for B_e (None where B_e is 0)
+        stiffness_settling_after_step_s
+                                  from the last step of the true K_e (a
+                                  change by more than TRACKING_STEP_MIN
+                                  between two samples, after the switch)
+                                  until K_est stays within 5 % (None if it
+                                  never does, or without a step)
+
+    max and RMS are None if an estimate is not finite. The window's start
+    and each step's time are given as ``from_s`` and ``step_times_s``.
+    Empty when the truth is constant after the switch or the run ends
+    within TRACKING_START_S of it."""
+    t = log["t"]
+    truth = log["true_impedance"]
+    after_switch = t >= t_contact - 1e-9
+    window = t >= t_contact + TRACKING_START_S - 1e-9
+    changes = np.ptp(truth[after_switch, 1:], axis=0) if after_switch.any() else [0, 0]
+    if not window.any() or not np.any(changes > 0):
+        return {}
+    K, B = truth[:, 2], truth[:, 1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        jump = np.abs(np.diff(K)) / np.abs(K[:-1])
+    steps = np.flatnonzero(after_switch[1:] & (jump > TRACKING_STEP_MIN)) + 1
+    out = {}
+    for config in identifiers:
+        est = log[f"impedance_{config.name}"]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            k_error = est[:, 2] / K - 1
+            b_error = np.where(B != 0, est[:, 1] / B - 1, np.nan)
+        entry = {"from_s": float(t[np.argmax(window)]),
+                 "step_times_s": [float(t[i]) for i in steps]}
+        (entry["stiffness_max_abs_error"], entry["stiffness_rms_error"],
+         entry["stiffness_within_5pct"]) = _tracking_errors(
+             k_error[window], SETTLE_TOLERANCE)
+        if np.all(B[window] != 0):
+            (entry["damping_max_abs_error"], entry["damping_rms_error"],
+             entry["damping_within_5pct"]) = _tracking_errors(
+                 b_error[window], SETTLE_TOLERANCE)
+        else:
+            entry.update(damping_max_abs_error=None, damping_rms_error=None,
+                         damping_within_5pct=None)
+        settle = None
+        if len(steps):
+            i = steps[-1]
+            settle = settling_time(t[i:], est[i:, 2] / K[i:], np.ones(len(t) - i, bool),
+                                   SETTLE_TOLERANCE)
+            if settle is not None:
+                settle = round(settle, 6)  # a difference of sample times
+        entry["stiffness_settling_after_step_s"] = settle
+        out[f"identification_tracking_{config.name}"] = entry
     return out
 
 

@@ -1,0 +1,148 @@
+"""Time-varying environments (issue 16): the tracking metrics on hand-made
+logs against hand computations, the wall's logged truth under the
+stiffness ramp and step against their closed forms."""
+
+import json
+
+import numpy as np
+import pytest
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource
+
+from drake_contact.app.metrics import identification_metrics, identification_tracking
+from drake_contact.faults import ChainFaults, FaultClock, FaultConfig
+from drake_contact.identification.identifiers import IdentifierConfig
+from drake_contact.plant.compliant_wall import CompliantWall, EnvironmentConfig
+
+DT = 1e-3  # the logs' sample period (s)
+
+
+def stepped_wall_log(estimate_error, *, duration_s=6.0, t_contact=1.0, t_step=3.0):
+    """Truth M_e = 0.01, B_e = 100, K_e = 1000 doubling at ``t_step``; the
+    K_e estimate is the truth times 1 + ``estimate_error(t)``, B_e exact."""
+    t = np.arange(round(duration_s / DT)) * DT
+    K = np.where(t >= t_step - 1e-9, 2000.0, 1000.0)
+    truth = np.column_stack([np.full(len(t), 0.01), np.full(len(t), 100.0), K])
+    estimate = truth.copy()
+    estimate[:, 2] = K * (1 + estimate_error(t))
+    info = np.zeros((len(t), 4))
+    info[:, 0] = np.where(t >= t_contact - 1e-9, t_contact, -1.0)
+    return {"t": t, "contact_info": info, "true_impedance": truth, "impedance_step": estimate}
+
+
+def test_tracking_scores_the_current_truth_from_1s_after_the_switch():
+    # +10 % before the switch + 1 s (not scored) and until 3.5 s (over the
+    # step at 3 s), then +2 %: scored from 2 s to 6 s, 1.5 s at 10 %, 2.5 s at 2 %.
+    log = stepped_wall_log(lambda t: np.where(t < 3.5 - 1e-9, 0.10, 0.02))
+    log["impedance_step"][log["t"] < 2.0, 2] = 0.0  # before the window: ignored
+    out = identification_tracking(log, [IdentifierConfig(name="step")], 1.0)
+    entry = out["identification_tracking_step"]
+    assert entry["from_s"] == pytest.approx(2.0)
+    assert entry["step_times_s"] == [pytest.approx(3.0)]
+    assert entry["stiffness_max_abs_error"] == pytest.approx(0.10)
+    assert entry["stiffness_rms_error"] == pytest.approx(np.sqrt((1.5 * 0.1**2 + 2.5 * 0.02**2) / 4))
+    assert entry["stiffness_within_5pct"] == pytest.approx(2.5 / 4)
+    assert entry["stiffness_settling_after_step_s"] == pytest.approx(0.5)
+    assert entry["damping_max_abs_error"] == 0.0
+    assert entry["damping_within_5pct"] == 1.0
+    json.dumps(out, allow_nan=False)
+
+
+def test_tracking_after_a_step_never_settles_if_the_last_sample_is_outside():
+    log = stepped_wall_log(lambda t: np.where(t < 5.0, 0.0, -0.5))
+    entry = identification_tracking(log, [IdentifierConfig(name="step")], 1.0)[
+        "identification_tracking_step"]
+    assert entry["stiffness_settling_after_step_s"] is None
+    assert entry["stiffness_max_abs_error"] == pytest.approx(0.5)
+    assert entry["stiffness_within_5pct"] == pytest.approx(3.0 / 4)
+
+
+def test_tracking_with_a_non_finite_estimate_has_no_max_and_counts_it_outside():
+    log = stepped_wall_log(lambda t: np.where(np.abs(t - 4.0) < 0.5, np.nan, 0.0))
+    entry = identification_tracking(log, [IdentifierConfig(name="step")], 1.0)[
+        "identification_tracking_step"]
+    assert entry["stiffness_max_abs_error"] is None
+    assert entry["stiffness_rms_error"] is None
+    assert entry["stiffness_within_5pct"] == pytest.approx(3.0 / 4, abs=1e-3)
+    assert entry["stiffness_settling_after_step_s"] == pytest.approx(1.5)
+
+
+def test_tracking_of_a_ramp_has_no_step():
+    # K_e +20 % over 3-5 s; the estimate stays at +3 % of the start.
+    log = stepped_wall_log(lambda t: 0.0)
+    t = log["t"]
+    log["true_impedance"][:, 2] = 1000.0 * (1 + 0.2 * np.clip((t - 3.0) / 2.0, 0, 1))
+    log["impedance_step"][:, 2] = 1000.0 * 1.03
+    entry = identification_tracking(log, [IdentifierConfig(name="step")], 1.0)[
+        "identification_tracking_step"]
+    assert entry["step_times_s"] == []
+    assert entry["stiffness_settling_after_step_s"] is None
+    # |1.03 / (1 + 0.2 s) - 1| < 5 % while 1 + 0.2 s < 1.03 / 0.95, s the
+    # ramp's share: 1 s before the ramp and 2 s_in of it, of the 4 s scored.
+    s_in = (1.03 / 0.95 - 1) / 0.2
+    assert entry["stiffness_within_5pct"] == pytest.approx((1.0 + 2.0 * s_in) / 4, abs=1e-3)
+    assert entry["stiffness_max_abs_error"] == pytest.approx(1 - 1.03 / 1.2)
+
+
+def test_a_constant_wall_adds_no_tracking_metrics():
+    log = stepped_wall_log(lambda t: 0.0, t_step=100.0)
+    assert identification_tracking(log, [IdentifierConfig(name="step")], 1.0) == {}
+    assert not [k for k in identification_metrics(log, [IdentifierConfig(name="step")])
+                if k.startswith("identification_tracking")]
+    # A change before the switch does not count either.
+    log = stepped_wall_log(lambda t: 0.0, t_step=0.5)
+    assert identification_tracking(log, [IdentifierConfig(name="step")], 1.0) == {}
+
+
+# The wall's truth under the environment faults: K_e (t) in closed form.
+
+def wall_with_fault(fault: FaultConfig, environment: EnvironmentConfig):
+    """The wall behind the fault's stiffness scale, its tip fixed 3 mm into
+    the surface; returns (diagram, clock, wall)."""
+    builder = DiagramBuilder()
+    wall = builder.AddNamedSystem("wall", CompliantWall(environment, 1e-3,
+                                                        stiffness_scale_input=True))
+    tip = builder.AddNamedSystem("tip", ConstantVectorSource(
+        [environment.surface_x + 3e-3, 0, 0, 0, 0, 0]))
+    builder.Connect(tip.get_output_port(), wall.GetInputPort("tip_state"))
+    clock = builder.AddNamedSystem("fault_clock", FaultClock())
+    builder.Connect(wall.GetOutputPort("contact_force"), clock.get_input_port())
+    one = builder.AddNamedSystem("stiffness_nominal", ConstantVectorSource([1.0]))
+    scale, _ = ChainFaults(builder, [fault], "stiffness", one.get_output_port(), 1,
+                           clock.get_output_port())
+    builder.Connect(scale, wall.GetInputPort("stiffness_scale"))
+    builder.ExportOutput(wall.GetOutputPort("true_impedance"), "true_impedance")
+    return builder.Build(), clock, wall
+
+
+def true_stiffness(diagram, clock, t, t_contact):
+    """K_e logged at time t, the clock holding a contact at ``t_contact``
+    (None: no contact yet)."""
+    context = diagram.CreateDefaultContext()
+    context.SetTime(t)
+    clock_context = clock.GetMyMutableContextFromRoot(context)
+    clock_context.SetDiscreteState([0.0 if t_contact is None else t_contact + 1.0])
+    return diagram.GetOutputPort("true_impedance").Eval(context)[2]
+
+
+@pytest.mark.parametrize("t", [0.5, 2.0, 2.4999, 2.5, 3.0, 17.5, 32.5, 40.0])
+def test_true_stiffness_follows_the_ramp_from_contact(t):
+    env = EnvironmentConfig(stiffness=7000.0, damping=100.0)
+    fault = FaultConfig(kind="stiffness_ramp", start_from="contact", start_s=1.5,
+                        duration_s=30.0, magnitude=1.2)
+    diagram, clock, _ = wall_with_fault(fault, env)
+    t_contact = 1.0
+    share = np.clip((t - t_contact - 1.5) / 30.0, 0.0, 1.0)
+    assert true_stiffness(diagram, clock, t, t_contact) == pytest.approx(
+        7000.0 * (1 + 0.2 * share), rel=1e-12)
+    assert true_stiffness(diagram, clock, t, None) == 7000.0  # no contact, no ramp
+
+
+@pytest.mark.parametrize("t", [0.5, 2.999, 3.0, 3.001, 100.0])
+def test_true_stiffness_steps_for_good_after_contact(t):
+    env = EnvironmentConfig(stiffness=50000.0, damping=150.0)
+    fault = FaultConfig(kind="stiffness_step", start_from="contact", start_s=2.0,
+                        duration_s=np.inf, magnitude=0.5)
+    diagram, clock, _ = wall_with_fault(fault, env)
+    expected = 25000.0 if t >= 3.0 else 50000.0
+    assert true_stiffness(diagram, clock, t, 1.0) == expected
