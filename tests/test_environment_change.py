@@ -1,6 +1,7 @@
 """Time-varying environments (issue 16): the tracking metrics on hand-made
 logs against hand computations, the wall's logged truth under the
-stiffness ramp and step against their closed forms."""
+stiffness ramp and step against their closed forms, and one short closed
+loop across a material change."""
 
 import json
 
@@ -9,6 +10,7 @@ import pytest
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
+import drake_contact
 from drake_contact.app.metrics import identification_metrics, identification_tracking
 from drake_contact.faults import ChainFaults, FaultClock, FaultConfig
 from drake_contact.identification.identifiers import IdentifierConfig
@@ -146,3 +148,45 @@ def test_true_stiffness_steps_for_good_after_contact(t):
     diagram, clock, _ = wall_with_fault(fault, env)
     expected = 25000.0 if t >= 3.0 else 50000.0
     assert true_stiffness(diagram, clock, t, 1.0) == expected
+
+
+# The closed loop across a material change: identify_step, its step 0.5 s
+# after contact instead of 2 s, and 2 s of the stiffer wall.
+
+STEP_AFTER_S = 0.5
+
+
+@pytest.fixture(scope="module")
+def step_run():
+    scenario = drake_contact.load_scenario(
+        "identify_step", [f"faults=[{{kind: stiffness_step, start_from: contact, "
+                          f"start_s: {STEP_AFTER_S}, duration_s: .inf, magnitude: 2.0}}]"],
+        duration=10.8)
+    return scenario, drake_contact.simulate_scenario(scenario)
+
+
+def test_the_controller_keeps_contact_and_the_wall_doubles(step_run):
+    scenario, result = step_run
+    assert result.status == "completed"
+    log, m = result.log, result.metrics
+    t, K = log["t"], log["true_impedance"][:, 2]
+    t_clock = float(log["fault_contact_time"][-1])
+    assert 7.5 < t_clock < 9.5
+    # The logged truth is the current K_e: 7 kN/m, then 14 kN/m from the step.
+    assert np.all(K[t < t_clock + STEP_AFTER_S - 1e-9] == 7000.0)
+    assert np.all(K[t >= t_clock + STEP_AFTER_S + DT] == 14000.0)
+    assert m["contact_losses"] == 0
+    # The force jumps with the spring and comes back to 20 N on the stiffer
+    # wall, at half the penetration.
+    assert m["peak_force_n"] > 30.0
+    last = t >= t[-1] - 0.2
+    force = log["contact_force_true"][last].mean()
+    assert force == pytest.approx(20.0, abs=1.0)
+    assert force / log["penetration_true"][last].mean() == pytest.approx(14000.0, rel=0.02)
+    # Every identifier is scored against the step.
+    for config in scenario.identifiers:
+        entry = m[f"identification_tracking_{config.name}"]
+        assert entry["step_times_s"] == [pytest.approx(t_clock + STEP_AFTER_S, abs=2 * DT)]
+        assert 0.0 <= entry["stiffness_within_5pct"] <= 1.0
+    json.dumps({k: v for k, v in m.items() if k.startswith("identification_tracking")},
+               allow_nan=False)
