@@ -176,11 +176,14 @@ def test_the_controller_keeps_contact_and_the_wall_doubles(step_run):
     assert np.all(K[t < t_clock + STEP_AFTER_S - 1e-9] == 7000.0)
     assert np.all(K[t >= t_clock + STEP_AFTER_S + DT] == 14000.0)
     assert m["contact_losses"] == 0
-    # The force jumps with the spring and comes back to 20 N on the stiffer
-    # wall, at half the penetration.
+    # The force jumps with the spring and comes back to f_d (20 N and the
+    # probing sine) on the stiffer wall, at half the penetration: means over
+    # the last two periods of the sine.
     assert m["peak_force_n"] > 30.0
-    last = t >= t[-1] - 0.2
+    periods = 2.0 / scenario.force_reference.probe_frequencies_hz[0]
+    last = np.arange(len(t)) >= len(t) - round(periods / DT)
     force = log["contact_force_true"][last].mean()
+    assert force == pytest.approx(log["force_desired"][last].mean(), abs=1.0)
     assert force == pytest.approx(20.0, abs=1.0)
     assert force / log["penetration_true"][last].mean() == pytest.approx(14000.0, rel=0.02)
     # Every identifier is scored against the step.
