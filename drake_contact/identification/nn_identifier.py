@@ -55,6 +55,17 @@ reads (M_e, B_e, K_e) at the current operating point x = (xe, xe', xe''):
   K_e = f_hat(xe, 0, 0) / xe, B_e = (f_hat(xe, s_v, 0) - f_hat(xe, 0, 0)) / s_v,
   M_e = (f_hat(xe, s_v, s_a) - f_hat(xe, s_v, 0)) / s_a.
 
+Which readout, measured on identify_any (walls 5-120 kN/m off the issue's
+grid): the Jacobian reads K_e near zero (-100 %). After the 50-100 ms switch
+transient the arm rests at one point, so the data pin f_hat there and not its
+slope; and in the transient, with running-max scales, input and target
+normalized are both about 1 all through the monotone rise, so no slope is
+learned there either (replaying stored transient samples offline did not
+rescue it: -27 to -97 %). The secant at the current displacement needs only
+the level the network holds at rest, f_hat(xe) = f - f_s, so it is K_e up to
+the anchor's error: the force at the switch less the static force there,
+over f - f_s (the identifier's ``signals`` decide f_s; README, "nn_auto").
+
 The floors (1 um, 0.1 mm/s, 0.01 m/s^2, 0.1 N) only keep the first samples
 finite: each is below what any wall's 20 N transient reaches (xe is 0.1 mm at
 150 kN/m), so no scale rests on one.
