@@ -119,3 +119,142 @@ def test_train_and_probes_are_bit_identical_to_the_array_expressions():
         assert f_hat == f_hat_expected
         np.testing.assert_array_equal(u_new, u)
         np.testing.assert_array_equal(hidden_new, hidden)
+
+
+# The self-scaling network (issue 16): normalization running, readouts at
+# the current operating point.
+
+def _running_config(**kwargs):
+    return NnIdentifierConfig(normalization="running", readout="jacobian", learning_rate=0.1,
+                              **kwargs)
+
+
+def test_running_scales_step_and_jacobian_against_a_hand_computation():
+    """W = 0 and v = (0.25, 0.4, 0.4, 0.4, 0.4): the hidden layer is 0, so
+    f_hat = s_f v_0 and one step moves v_0 by eta e and each W row by
+    eta e v_k / 2 [1, u]."""
+    net = ImpedanceNetwork(_running_config())
+    weights = np.concatenate([np.zeros(16), [0.25, 0.4, 0.4, 0.4, 0.4]])
+    x, f = np.array([2e-3, -0.01, 0.5]), 8.0
+    scales = net.update_scales(np.array([1e-6, 1e-4, 1e-2, 0.1]), x, f)
+    np.testing.assert_array_equal(scales, [2e-3, 0.01, 0.5, 8.0])
+    # A smaller sample leaves the scales alone; a floor stays a floor.
+    np.testing.assert_array_equal(net.update_scales(scales, x / 2, -4.0), scales)
+    np.testing.assert_array_equal(net.update_scales([1e-6, 1e-4, 1e-2, 0.1], [0, 0, 0], 0.0),
+                                  [1e-6, 1e-4, 1e-2, 0.1])
+    new, f_hat = net.train_scaled(weights, x, f, scales)
+    assert f_hat == pytest.approx(8.0 * 0.25)
+    e = (8.0 - 2.0) / 8.0                             # 0.75, normalized by s_f
+    u = np.array([1.0, 1.0, -1.0, 1.0])               # [1, x / s]
+    expected_W = np.tile(0.1 * e * 0.4 * 0.5 * u, (4, 1))  # 0.015 [1, 1, -1, 1]
+    np.testing.assert_allclose(new[:16].reshape(4, 4), expected_W, rtol=1e-14)
+    np.testing.assert_allclose(new[16:], [0.25 + 0.1 * e, 0.4, 0.4, 0.4, 0.4], rtol=1e-14)
+    # Jacobian at x: every pre-activation is 0.015 * 4 = 0.06, f(0.06) = tanh(0.03).
+    h = np.tanh(0.03)
+    d_u = 4 * 0.4 * 0.5 * (1 - h * h) * 0.015 * np.array([1.0, -1.0, 1.0])
+    M_e, B_e, K_e = net.jacobian(new, x, scales)
+    np.testing.assert_allclose([K_e, B_e, M_e], 8.0 * d_u / scales[:3], rtol=1e-12)
+    assert K_e == pytest.approx(8.0 * 0.012 * (1 - h * h) / 2e-3)   # about 48 N/m
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_jacobian_readout_matches_finite_differences(seed):
+    rng = np.random.default_rng(seed)
+    net = ImpedanceNetwork(_running_config())
+    weights = rng.normal(0.0, 1.0, ImpedanceNetwork.size)
+    scales = np.array([rng.uniform(1e-4, 5e-3), rng.uniform(1e-3, 0.05),
+                       rng.uniform(0.1, 3.0), rng.uniform(5.0, 30.0)])
+    x = rng.uniform(-1, 1, 3) * scales[:3]
+    jacobian = net.jacobian(weights, x, scales)
+    fd = []
+    for i in range(3):
+        step = 1e-6 * scales[i]
+        dx = np.zeros(3)
+        dx[i] = step
+        fd.append((net.forward_scaled(weights, x + dx, scales)[0]
+                   - net.forward_scaled(weights, x - dx, scales)[0]) / (2 * step))
+    np.testing.assert_allclose(jacobian, fd[::-1], rtol=1e-6)
+
+
+def test_operating_point_readout_probes_at_the_current_displacement_and_the_scales():
+    """Secants at x* = xe (its floor at 0), v* = s_v, a* = s_a; a network
+    that is linear near the origin reads its slopes."""
+    net = ImpedanceNetwork(NnIdentifierConfig(normalization="running",
+                                              readout="operating_point"))
+    # One hidden unit in its linear range: f_hat ~ s_f v_1 (a . u) / 2.
+    weights = np.zeros(ImpedanceNetwork.size)
+    weights[4:8] = [0.0, 1e-3, 2e-3, 3e-3]             # W row 1: [bias, u_x, u_v, u_a]
+    weights[18] = 1.0                                  # v_1
+    scales = np.array([1e-3, 0.02, 1.0, 10.0])
+    M_e, B_e, K_e = net.operating_point(weights, [5e-4, 0.0, 0.0], scales)
+    # f(h) = tanh(h / 2) departs from h / 2 by h^2 / 12 relative: < 1e-5 here.
+    assert K_e == pytest.approx(10.0 * 1e-3 / 2 / 1e-3, rel=1e-5)    # 5 N/m
+    assert B_e == pytest.approx(10.0 * 2e-3 / 2 / 0.02, rel=1e-5)
+    assert M_e == pytest.approx(10.0 * 3e-3 / 2 / 1.0, rel=1e-5)
+
+    def f_hat(p):
+        return net.forward_scaled(weights, np.array(p), scales)[0]
+    floor = net.c.scale_floor[0]
+    at_zero = net.operating_point(weights, [0.0, 0.01, 0.3], scales)
+    assert at_zero[2] == f_hat([floor, 0, 0]) / floor
+    assert at_zero[1] == (f_hat([floor, 0.02, 0]) - f_hat([floor, 0, 0])) / 0.02
+
+
+@pytest.mark.parametrize("readout", ["jacobian", "operating_point"])
+def test_running_system_step_updates_scales_weights_and_readout(readout):
+    from drake_contact.identification.nn_identifier import NnIdentifier
+    config = NnIdentifierConfig(normalization="running", readout=readout, force_offset=True,
+                                learning_rate=0.05)
+    system = NnIdentifier(config, seed=4)
+    net = ImpedanceNetwork(config)
+    x = np.array([1e-3, 0.01, 0.5])
+    context = _fixed_context(system, 12.0, x)
+    x[0] = (0.4 + 1e-3) - 0.4                          # xe as the system computes it
+    w0 = context.get_discrete_state(0).value().copy()
+    state = CalcSampledUpdate(system, context)
+    # The first sample: f_s = 12 N, so the network trains on 0 N.
+    scales = net.update_scales(np.array(config.scale_floor), x, 0.0)
+    expected, f_hat = net.train_scaled(w0, x, 0.0, scales)
+    np.testing.assert_array_equal(state.get_vector(4).value(), scales)
+    np.testing.assert_array_equal(state.get_vector(0).value(), expected)
+    readout_of = net.jacobian if readout == "jacobian" else net.operating_point
+    np.testing.assert_array_equal(state.get_vector(1).value(), readout_of(expected, x, scales))
+    assert state.get_vector(2).value()[0] == pytest.approx(f_hat + 12.0)
+
+
+@pytest.mark.parametrize("field,value,message", [
+    ("normalization", "rms", "identifiers[0].nn.normalization = 'rms' is unknown: choose one "
+                             "of fixed, running"),
+    ("readout", "secant", "identifiers[0].nn.readout = 'secant' is unknown: choose one of "
+                          "probe, operating_point, jacobian"),
+    ("readout", "jacobian", "identifiers[0].nn.readout = 'jacobian' needs "
+                            "identifiers[0].nn.normalization = 'running'"),
+    ("scale_floor", [1e-6, 0.0, 1e-2, 0.1], "identifiers[0].nn.scale_floor = [1e-06, 0.0, "
+                                            "0.01, 0.1] is out of range: must be 4 finite "
+                                            "values > 0"),
+    ("scale_floor", [1e-6, 1e-4, 1e-2], "identifiers[0].nn.scale_floor = [1e-06, 0.0001, "
+                                        "0.01] is out of range"),
+])
+def test_bad_self_scaling_fields_name_the_field_and_the_range(field, value, message):
+    from drake_contact.errors import ScenarioError
+    from drake_contact.scenario import load_scenario
+    with pytest.raises(ScenarioError) as error:
+        load_scenario({"identifiers": [{"name": "auto", "kind": "nn",
+                                        "nn": {field: value}}]})
+    assert message in str(error.value)
+
+
+@pytest.mark.parametrize("stiffness,damping", [(7000.0, 100.0), (100000.0, 30.0)])
+def test_self_scaling_identifier_meets_the_10_percent_bar_at_1_s_in_closed_loop(
+        tmp_path, stiffness, damping):
+    """Issue 16 item 2's bar on two of its grid points (seed 0): nn_auto,
+    with the same settings on both walls, has K_e within 10 % 1 s after
+    contact (7-8.3 s); the run stops shortly after."""
+    from drake_contact.app.runner import run
+    from drake_contact.scenario import load_scenario
+    scenario = load_scenario("identify_any", [f"environment.stiffness={stiffness}",
+                                              f"environment.damping={damping}"],
+                             duration=9.6, seed=0)
+    m = run(scenario, tmp_path, figures=False).metrics
+    assert m["contact_time_s"] < 8.6                   # so the 1 s sample is in the run
+    assert abs(m["identification_error_1s_nn_auto"]["stiffness"]) < 0.10

@@ -173,7 +173,8 @@ def test_bad_sweeps_exit_2_with_one_line_naming_the_field(tmp_path, text, words)
 
 @pytest.mark.parametrize("name", ["stability_nn", "stability_hybrid", "identification_accuracy",
                                   "robust_nn", "adaptive_hybrid", "hybrid_pi_map",
-                                  "fig6_15_wall_friction", "stability_nn_robust"])
+                                  "fig6_15_wall_friction", "stability_nn_robust",
+                                  "identify_any_nn_auto"])
 def test_bundled_sweeps_load_in_full_and_quick(name):
     full, quick = load_sweep(name), load_sweep(name, quick=True)
     assert len(quick.tasks()) <= 4 < len(full.tasks())

@@ -28,6 +28,47 @@ displacement it rests at (2 mm styrofoam, 0.3 mm rubber here), as the thesis
 says ("dummy values close to learned values"). B_e and M_e rest on the
 transient alone and depend on the initial weights. The thesis's form is the
 default.
+
+Self-scaling (ours, issue 16; ``normalization: running``): no per-material
+constant. Each input is divided by the largest magnitude it has taken since
+the switch, s_i = max(floor_i, max |x_i|), and the output by the largest
+|f - f_s| so far, s_f, so u = x / s lies in [-1, 1] and
+
+    f_hat = s_f (v . [1, f(W [1, x / s])])
+
+with one gradient step of rate eta on the normalized loss
+1/2 ((f - f_s - f_hat) / s_f)^2 (normalized LMS, Widrow & Lehr 1990; running
+input scales as in online normalization, e.g. Chiley et al. 2019):
+
+    e = (f - f_s - f_hat) / s_f
+    v += eta e [1, f(h)]
+    W += eta outer(e v_1: (1 - f(h)^2) / 2, [1, u])
+
+The scales are updated with the sample before the step. ``readout`` then
+reads (M_e, B_e, K_e) at the current operating point x = (xe, xe', xe''):
+
+- ``jacobian``: the partial derivatives of f_hat,
+  d f_hat / d x_i = (s_f / s_i) sum_k v_k (1 - f(h_k)^2) / 2 W_k,i.
+- ``operating_point``: the thesis's secants with the probe replaced by the
+  current displacement and the running scales, x* = xe (at least its floor),
+  v* = s_v, a* = s_a:
+  K_e = f_hat(xe, 0, 0) / xe, B_e = (f_hat(xe, s_v, 0) - f_hat(xe, 0, 0)) / s_v,
+  M_e = (f_hat(xe, s_v, s_a) - f_hat(xe, s_v, 0)) / s_a.
+
+Which readout, measured on identify_any (walls 5-120 kN/m off the issue's
+grid): the Jacobian reads K_e near zero (-100 %). After the 50-100 ms switch
+transient the arm rests at one point, so the data pin f_hat there and not its
+slope; and in the transient, with running-max scales, input and target
+normalized are both about 1 all through the monotone rise, so no slope is
+learned there either (replaying stored transient samples offline did not
+rescue it: -27 to -97 %). The secant at the current displacement needs only
+the level the network holds at rest, f_hat(xe) = f - f_s, so it is K_e up to
+the anchor's error: the force at the switch less the static force there,
+over f - f_s (the identifier's ``signals`` decide f_s; README, "nn_auto").
+
+The floors (1 um, 0.1 mm/s, 0.01 m/s^2, 0.1 N) only keep the first samples
+finite: each is below what any wall's 20 N transient reaches (xe is 0.1 mm at
+150 kN/m), so no scale rests on one.
 """
 
 import dataclasses as dc
@@ -40,6 +81,8 @@ from drake_contact.errors import ScenarioError
 
 HIDDEN = 4
 OUTPUT_LAYERS = ("linear", "appendix_e")
+NORMALIZATIONS = ("fixed", "running")
+READOUTS = ("probe", "operating_point", "jacobian")
 
 
 @dc.dataclass
@@ -63,6 +106,17 @@ class NnIdentifierConfig:
     # network, as Appendix E codes its controller's network (see
     # AppendixEImpedanceNetwork).
     output_layer: str = "linear"
+    # Input and output scales: fixed (input_scale, output_scale_n: the thesis)
+    # or running (ours: the largest |x_i| and |f - f_s| since the switch, at
+    # least scale_floor; learning_rate is then the rate on the normalized loss).
+    normalization: str = "fixed"
+    # Floors of the running scales (m, m/s, m/s^2, N): below any wall's transient.
+    scale_floor: list[float] = dc.field(default_factory=lambda: [1e-6, 1e-4, 1e-2, 0.1])
+    # Readout of (M_e, B_e, K_e): probe (secants at the fixed probe point: the
+    # thesis), operating_point (secants at the current xe, steps = running
+    # scales) or jacobian (partial derivatives at the current sample); the
+    # last two need normalization: running.
+    readout: str = "probe"
 
     def validate(self, prefix):
         if not (0 < self.learning_rate < 1):
@@ -76,6 +130,20 @@ class NnIdentifierConfig:
         if len(self.probe) != 3 or not all(np.isfinite(x) and x >= 1e-9 for x in self.probe):
             raise ScenarioError(f"{prefix}.probe = {self.probe} is out of range: "
                                 "must be 3 finite values >= 1e-09 (m, m/s, m/s^2)")
+        if self.normalization not in NORMALIZATIONS:
+            raise ScenarioError(f"{prefix}.normalization = '{self.normalization}' is unknown: "
+                                f"choose one of {', '.join(NORMALIZATIONS)}")
+        if self.readout not in READOUTS:
+            raise ScenarioError(f"{prefix}.readout = '{self.readout}' is unknown: "
+                                f"choose one of {', '.join(READOUTS)}")
+        if self.readout != "probe" and self.normalization != "running":
+            raise ScenarioError(f"{prefix}.readout = '{self.readout}' needs "
+                                f"{prefix}.normalization = 'running' (the running scales "
+                                "are its steps)")
+        if len(self.scale_floor) != 4 or not all(np.isfinite(x) and x > 0
+                                                 for x in self.scale_floor):
+            raise ScenarioError(f"{prefix}.scale_floor = {self.scale_floor} is out of range: "
+                                "must be 4 finite values > 0 (m, m/s, m/s^2, N)")
         for field in ("output_scale_n", "initial_weight_std"):
             value = getattr(self, field)
             if not (np.isfinite(value) and value > 0):
@@ -84,6 +152,10 @@ class NnIdentifierConfig:
         if self.output_layer not in OUTPUT_LAYERS:
             raise ScenarioError(f"{prefix}.output_layer = '{self.output_layer}' is unknown: "
                                 f"choose one of {', '.join(OUTPUT_LAYERS)}")
+        if self.output_layer != "linear" and self.normalization != "fixed":
+            raise ScenarioError(f"{prefix}.output_layer = '{self.output_layer}' is out of "
+                                "range with normalization 'running': the running scales "
+                                "are built for the linear output layer")
 
 
 class ImpedanceNetwork:
@@ -197,6 +269,52 @@ class ImpedanceNetwork:
         """(M_e, B_e, K_e) by probing at (x*, v*, a*)."""
         return np.array(self._impedance(weights))
 
+    # Self-scaling (normalization: running): plain array expressions; the
+    # scales s = (s_x, s_v, s_a, s_f) are arguments (the system's state).
+
+    def update_scales(self, scales, x, f):
+        """The running scales after the sample x = (xe, xe', xe''), f (N,
+        less f_s): elementwise max(scales, |x|, |f|)."""
+        return np.maximum(scales, np.abs(np.append(np.asarray(x, dtype=float), f)))
+
+    def forward_scaled(self, weights, x, scales):
+        """f_hat = s_f (v . [1, f(W [1, x / s])]) and the hidden activations."""
+        W, v = self.unpack(weights)
+        u = np.concatenate([[1.0], np.asarray(x, dtype=float) / scales[:3]])
+        hidden = 2.0 / (1.0 + np.exp(-(W @ u))) - 1.0
+        return scales[3] * (v[0] + v[1:] @ hidden), u, hidden
+
+    def train_scaled(self, weights, x, f, scales):
+        """One step on 1/2 ((f - f_hat) / s_f)^2; returns the new weights and
+        f_hat before the step (see the module doc)."""
+        W, v = self.unpack(weights)
+        f_hat, u, hidden = self.forward_scaled(weights, x, scales)
+        e = (f - f_hat) / scales[3]
+        grad_v = -e * np.concatenate([[1.0], hidden])
+        grad_W = np.outer(-e * v[1:] * 0.5 * (1.0 - hidden**2), u)
+        eta = self.c.learning_rate
+        return np.concatenate([(W - eta * grad_W).ravel(), v - eta * grad_v]), f_hat
+
+    def jacobian(self, weights, x, scales):
+        """(M_e, B_e, K_e) = d f_hat / d (xe'', xe', xe) at x."""
+        W, v = self.unpack(weights)
+        _, _, hidden = self.forward_scaled(weights, x, scales)
+        d_u = W[:, 1:].T @ (v[1:] * 0.5 * (1.0 - hidden**2))
+        return (scales[3] * d_u / scales[:3])[::-1]
+
+    def operating_point(self, weights, x, scales, probe=None):
+        """(M_e, B_e, K_e) by the thesis's secants at x* = xe (at least its
+        floor in magnitude), v* = s_v, a* = s_a; or at a given ``probe``."""
+        if probe is None:
+            floor = self.c.scale_floor[0]
+            xs = float(x[0]) if abs(x[0]) >= floor else (floor if x[0] >= 0 else -floor)
+            vs, acc = scales[1], scales[2]
+        else:
+            xs, vs, acc = probe
+        f_x, f_xv, f_xva = (self.forward_scaled(weights, p, scales)[0]
+                            for p in ([xs, 0.0, 0.0], [xs, vs, 0.0], [xs, vs, acc]))
+        return np.array([(f_xva - f_xv) / acc, (f_xv - f_x) / vs, f_x / xs])
+
     def initial_weights(self, seed):
         rng = np.random.default_rng(seed)
         return rng.normal(0.0, self.c.initial_weight_std, self.size)
@@ -263,10 +381,12 @@ class NnIdentifier(LeafSystem):
 
     Input ports: as RlsIdentifier (force, tip_pose, tip_velocity,
       tip_acceleration, contact_info).
-    Output ports (state outputs): impedance (3): probed [M_e, B_e, K_e];
+    Output ports (state outputs): impedance (3): [M_e, B_e, K_e] (kg, N s/m,
+      N/m) by ``readout``;
       force_estimate (1): the network's force before each step (N; plus
       f_s with ``force_offset``).
-    State: the weights (discrete), seeded; [started, f_s].
+    State: the weights (discrete), seeded; [started, f_s]; with
+      ``normalization: running`` also the scales (s_x, s_v, s_a, s_f).
     """
 
     def __init__(self, config: NnIdentifierConfig, seed: int):
@@ -282,6 +402,11 @@ class NnIdentifier(LeafSystem):
         self._impedance = self.DeclareDiscreteState(self._net.impedance(weights))
         self._estimate = self.DeclareDiscreteState(1)
         self._switch = self.DeclareDiscreteState(2)
+        self._running = config.normalization == "running"
+        if self._running:
+            # The running scales (s_x, s_v, s_a, s_f), from their floors.
+            self._scales = self.DeclareDiscreteState(np.asarray(config.scale_floor, dtype=float))
+            self._i_scales = int(self._scales)
         # Plain ints index the groups (cheaper to pass to pydrake).
         self._i_weights, self._i_impedance, self._i_estimate, self._i_switch = (
             int(i) for i in (self._weights, self._impedance, self._estimate, self._switch))
@@ -302,8 +427,26 @@ class NnIdentifier(LeafSystem):
             f_s = force if self._net.c.force_offset else 0.0
             state.get_mutable_value(self._i_switch)[:] = (1.0, f_s)
         net = self._net
+        if self._running:
+            self._update_running(context, state, (x0, x1, x2), force - f_s, f_s)
+            return
         weights = state.get_mutable_value(self._i_weights)
         f_hat = net._train(context.get_discrete_state(self._i_weights).value(),
                            float(x0), float(x1), float(x2), float(force - f_s), weights)
         state.get_mutable_value(self._i_impedance)[:] = net._impedance(weights)
+        state.get_mutable_value(self._i_estimate)[0] = f_hat + f_s
+
+    def _update_running(self, context, state, x, f, f_s):
+        net = self._net
+        scales = net.update_scales(context.get_discrete_state(self._i_scales).value(), x, f)
+        weights, f_hat = net.train_scaled(context.get_discrete_state(self._i_weights).value(),
+                                          x, f, scales)
+        if net.c.readout == "jacobian":
+            impedance = net.jacobian(weights, x, scales)
+        else:
+            probe = net.c.probe if net.c.readout == "probe" else None
+            impedance = net.operating_point(weights, x, scales, probe)
+        state.get_mutable_value(self._i_scales)[:] = scales
+        state.get_mutable_value(self._i_weights)[:] = weights
+        state.get_mutable_value(self._i_impedance)[:] = impedance
         state.get_mutable_value(self._i_estimate)[0] = f_hat + f_s
