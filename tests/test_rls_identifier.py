@@ -146,6 +146,66 @@ def test_stiffness_drift_follows_a_drifting_stiffness_where_the_plain_fit_lags()
     assert worst[0.0] > 0.05
 
 
+def step_data(n=4000, step_at=2.0, seed=5):
+    """Noisy samples of a wall whose K_e doubles at ``step_at`` (s)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 1e-3
+    xe = 1e-3 * (2.0 + 0.4 * np.sin(2 * np.pi * 1.7 * t))
+    xd = np.gradient(xe, 1e-3)
+    xdd = np.gradient(xd, 1e-3)
+    K = np.where(t < step_at, 7000.0, 14000.0)
+    f = TRUE[0] * xdd + TRUE[1] * xd + K * xe + 5.0 + rng.normal(0.0, 0.5, n)
+    return t, xe, xd, xdd, K, f
+
+
+def test_change_detection_filters_the_prediction_error_and_resets_p_by_hand():
+    """Two samples by hand: e_bar += alpha (e - e_bar), alpha = 1 ms / 50 ms;
+    past the threshold (and the hold-off) P returns to diag(p0), theta stays."""
+    config = RlsConfig(force_offset=True, change_threshold_n=0.5, change_holdoff_s=0.0)
+    rls = RlsEstimator(config)
+    rls.theta = np.array([0.0, 0.0, 7000.0, 5.0])
+    rls.P = np.diag([1.0, 2.0, 3.0, 4.0])
+    phi = np.array([0.0, 0.0, 1e-3, 1.0])
+    # Prediction 7000 * 1e-3 + 5 = 12 N; f = 32 N, e = 20 N:
+    # e_bar = 0.02 * 20 = 0.4 N, under 0.5 N.
+    rls.samples = 1
+    assert not rls.detect(phi, 32.0)
+    assert rls.error == pytest.approx(0.4)
+    np.testing.assert_array_equal(rls.P, np.diag([1.0, 2.0, 3.0, 4.0]))
+    # e_bar = 0.4 + 0.02 (20 - 0.4) = 0.792 N: reset.
+    rls.samples = 2
+    assert rls.detect(phi, 32.0)
+    np.testing.assert_array_equal(rls.P, np.diag(RlsConfig().p0))
+    np.testing.assert_array_equal(rls.theta, [0.0, 0.0, 7000.0, 5.0])
+    assert rls.error == 0.0 and rls.resets == [2]
+
+
+def test_change_detection_follows_a_jump_the_random_walk_does_not():
+    """K_e doubles at 2 s: with the reset (2 N) the estimate is within 5 %
+    of the new K_e 0.5 s after the jump and resets once, just after it;
+    with the random walk alone it is still far off 2 s after it."""
+    t, xe, xd, xdd, K, f = step_data()
+    outcomes = {}
+    for threshold in (0.0, 2.0):
+        rls = RlsEstimator(RlsConfig(force_offset=True, stiffness_drift=1e-9,
+                                     change_threshold_n=threshold))
+        k_est = np.array([rls.update(xe[k], xd[k], xdd[k], f[k])[2] for k in range(len(t))])
+        outcomes[threshold] = (np.abs(k_est / K - 1), rls.resets)
+    error, resets = outcomes[2.0]
+    assert len(resets) == 1 and 2000 < resets[0] < 2050
+    assert error[(t >= 2.5)].max() < 0.05
+    assert outcomes[0.0][0][-1] > 0.2
+
+
+@pytest.mark.parametrize("field, value", [("change_threshold_n", -1.0),
+                                          ("change_threshold_n", float("nan")),
+                                          ("change_time_constant_s", 0.0),
+                                          ("change_holdoff_s", float("inf"))])
+def test_change_detection_fields_are_validated(field, value):
+    with pytest.raises(ScenarioError, match=rf"rls.{field} = .* is out of range"):
+        RlsConfig(**{field: value}).validate("rls")
+
+
 @pytest.mark.parametrize("value", [-1e-9, 2e-3, float("nan")])
 def test_stiffness_drift_is_validated(value):
     with pytest.raises(ScenarioError, match=r"rls.stiffness_drift = .* is out of range"):
@@ -206,6 +266,26 @@ def test_force_offset_form_recovers_the_impedance_under_a_constant_offset():
     # The thesis's form, fed the same data, over-estimates K_e.
     plain, plain_context = make_identifier(p0=DIFFUSE)
     assert run_identifier(plain, plain_context, f_offset=5.0)[2] / TRUE[2] - 1 > 0.1
+
+
+def test_system_change_detection_is_bit_identical_to_the_estimator():
+    """With change detection on, the system's theta, P and detector state
+    equal RlsEstimator's sample for sample through a jump of K_e (which
+    resets P once)."""
+    t, xe, xd, xdd, K, f = step_data(n=2600)
+    config = dict(force_offset=True, stiffness_drift=1e-9, change_threshold_n=2.0)
+    system, context = make_identifier(**config)
+    rls = RlsEstimator(RlsConfig(**config))
+    for k in range(len(t)):
+        xe_read = (X_SWITCH + xe[k]) - X_SWITCH
+        rls.update(xe_read, xd[k], xdd[k], f[k])
+        fix_inputs(system, context, t_contact=0.0, xe=xe[k], xd=xd[k], xdd=xdd[k], f=f[k])
+        step(system, context)
+        np.testing.assert_array_equal(context.get_discrete_state(THETA_P_GROUP).value(),
+                                      np.concatenate([rls.theta, rls.P.ravel()]))
+    assert len(rls.resets) == 1
+    np.testing.assert_array_equal(context.get_discrete_state(2).value(),
+                                  [rls.error, rls.samples, rls.last_reset])
 
 
 @pytest.mark.parametrize("force_offset,lam,drift", [(False, 1.0, 0.0), (True, 1.0, 0.0),

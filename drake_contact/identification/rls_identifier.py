@@ -33,6 +33,22 @@ current estimate), and each update adds it to P:
 Unlike lambda < 1, which discounts every parameter and multiplies P by
 1/lambda per sample while the arm rests (windup), it lets only K_e move,
 and at rest P_KK grows linearly, not exponentially.
+
+A random walk follows a drift, not a jump (a material change). The option
+``change_threshold_n`` (ours, issue 16) resets the covariance when the fit
+stops predicting the force, the covariance resetting of G. C. Goodwin and
+K. S. Sin, Adaptive Filtering, Prediction and Control, 1984, section 3.3
+(and K. J. Astrom and B. Wittenmark, Adaptive Control, 2nd ed., 1995,
+section 11.4, on detecting parameter changes): the a priori prediction
+error e = f - phi^T theta is averaged by a first-order filter of time
+constant ``change_time_constant_s`` (on the 1 ms samples, alpha = T / tau),
+
+    e_bar += alpha (e - e_bar),
+
+and when |e_bar| exceeds the threshold, no sooner than
+``change_holdoff_s`` after the switch or the last reset, P returns to its
+initial diag(p0) (theta is kept) and e_bar to 0. The gauge noise alone moves
+e_bar by about 0.1 N; a change of K_e at 20 N moves it by newtons.
 """
 
 import dataclasses as dc
@@ -59,6 +75,12 @@ class RlsConfig:
     # Relative random-walk variance of K_e per sample (see the module doc);
     # 0 = a constant K_e (the thesis).
     stiffness_drift: float = 0.0
+    # Covariance reset on a detected change (see the module doc): threshold
+    # on the filtered prediction error (N; 0 = off), its time constant (s) and
+    # the least time between resets, and after the switch (s).
+    change_threshold_n: float = 0.0
+    change_time_constant_s: float = 0.05
+    change_holdoff_s: float = 0.5
 
     def validate(self, prefix):
         if len(self.theta0) != 3 or not all(np.isfinite(self.theta0)):
@@ -72,6 +94,13 @@ class RlsConfig:
         if not (0 <= self.stiffness_drift <= 1e-3):
             raise ScenarioError(f"{prefix}.stiffness_drift = {self.stiffness_drift} is out of "
                                 "range: must be in [0, 1e-3] (a relative variance per sample)")
+        for name, low, high in (("change_threshold_n", 0.0, 1e3),
+                                ("change_time_constant_s", 1e-3, 10.0),
+                                ("change_holdoff_s", 0.0, 1e3)):
+            value = getattr(self, name)
+            if not (low <= value <= high):
+                raise ScenarioError(f"{prefix}.{name} = {value} is out of range: must be in "
+                                    f"[{low:g}, {high:g}]")
 
 
 class RlsEstimator:
@@ -82,7 +111,32 @@ class RlsEstimator:
         self.lam = config.forgetting_factor
         self.drift = config.stiffness_drift
         self.theta = np.array(list(config.theta0) + [0.0] * (self.n - 3), dtype=float)
-        self.P = np.diag(np.asarray(config.p0[:self.n], dtype=float))
+        self.P0 = np.diag(np.asarray(config.p0[:self.n], dtype=float))
+        self.P = self.P0.copy()
+        # Change detection: the filtered prediction error and the time of the
+        # switch or the last reset (samples counted by update()).
+        self.config = config
+        self.error = 0.0
+        self.samples = 0
+        self.last_reset = 0
+        self.resets = []
+
+    def detect(self, phi, f):
+        """Filters the a priori error of a sample and resets P on a change
+        (before the sample's update); returns whether it reset."""
+        c = self.config
+        if not c.change_threshold_n:
+            return False
+        alpha = CONTROL_PERIOD / c.change_time_constant_s
+        self.error += alpha * (f - phi @ self.theta - self.error)
+        armed = (self.samples - self.last_reset) * CONTROL_PERIOD >= c.change_holdoff_s - 1e-9
+        if armed and abs(self.error) > c.change_threshold_n:
+            self.P = self.P0.copy()
+            self.error = 0.0
+            self.last_reset = self.samples
+            self.resets.append(self.samples)
+            return True
+        return False
 
     @staticmethod
     def step(theta, P, phi, f, lam, drift=0.0):
@@ -98,6 +152,8 @@ class RlsEstimator:
 
     def update(self, xe, xe_dot, xe_ddot, f):
         phi = np.array([xe_ddot, xe_dot, xe, 1.0][:self.n])
+        self.samples += 1
+        self.detect(phi, f)
         self.theta, self.P = self.step(self.theta, self.P, phi, f, self.lam, self.drift)
         return self.theta
 
@@ -111,7 +167,9 @@ class RlsIdentifier(LeafSystem):
       contact_info (4): [first switch time or -1, x, y, phi at the switch].
     Output port: impedance (3): [M_e, B_e, K_e] (kg, N s/m, N/m), theta0
       until the switch (state output).
-    State: theta (n), P (n x n), with n = 3, or 4 with the force offset.
+    State: theta (n), P (n x n), with n = 3, or 4 with the force offset;
+      with change detection also [filtered error, samples since the switch,
+      sample of the last reset] (RlsEstimator.detect).
     """
 
     def __init__(self, config: RlsConfig):
@@ -132,6 +190,11 @@ class RlsIdentifier(LeafSystem):
         self.DeclareStateOutputPort("impedance", self._impedance)
         self._lam = config.forgetting_factor
         self._drift = config.stiffness_drift
+        self._detect = bool(config.change_threshold_n)
+        if self._detect:
+            self._i_change = int(self.DeclareDiscreteState(np.zeros(3)))
+            self._P0 = init.P0
+            self._alpha = CONTROL_PERIOD / config.change_time_constant_s
         # Work buffers of one sample's step (see _update).
         n = self._n
         self._values = np.empty(n + n * n)             # the state [theta, P.ravel()] read
@@ -161,6 +224,8 @@ class RlsIdentifier(LeafSystem):
         phi[1] = self._velocity.Eval(context)[0]
         phi[2] = self._pose.Eval(context)[0] - contact[1]
         f, lam = self._force.Eval(context)[0], self._lam
+        if self._detect:
+            self._detect_change(context, state, phi, f)
         np.dot(self._P, phi, out=P_phi)
         np.divide(P_phi, lam + np.dot(phi, P_phi), out=gain)
         np.multiply(gain, f - np.dot(phi, self._theta), out=self._theta_step)
@@ -174,3 +239,15 @@ class RlsIdentifier(LeafSystem):
             self._new_P[2, 2] += self._drift * self._new_theta[2] * self._new_theta[2]
         state.get_mutable_value(self._i_state)[:] = self._new
         state.get_mutable_value(self._i_impedance)[:] = self._new_impedance
+
+    def _detect_change(self, context, state, phi, f):
+        """RlsEstimator.detect on the state: may reset the P read."""
+        c = self._config
+        error, samples, last = context.get_discrete_state(self._i_change).value()
+        samples += 1.0
+        error += self._alpha * (f - np.dot(phi, self._theta) - error)
+        armed = (samples - last) * CONTROL_PERIOD >= c.change_holdoff_s - 1e-9
+        if armed and abs(error) > c.change_threshold_n:
+            self._P[:] = self._P0
+            error, last = 0.0, samples
+        state.get_mutable_value(self._i_change)[:] = [error, samples, last]
