@@ -209,9 +209,8 @@ class ImpedanceNetwork:
         np.divide(2.0, pre, out=pre)
         np.subtract(pre, 1.0, out=out)
 
-    def _forward(self, weights, x0, x1, x2):
-        """f_hat for raw x = (x0, x1, x2); [1, scale x] and [1, f(h)] into
-        the buffers."""
+    def _pre_activations(self, weights, x0, x1, x2):
+        """[1, scale x] into the buffer u1 and W [1, scale x] into pre."""
         u1 = self._u1
         s0, s1, s2 = self._scale
         u1[1] = s0 * x0
@@ -219,6 +218,11 @@ class ImpedanceNetwork:
         u1[3] = s2 * x2
         W = weights[:self._SPLIT].reshape(HIDDEN, 4)
         np.dot(W, u1, out=self._pre)
+
+    def _forward(self, weights, x0, x1, x2):
+        """f_hat for raw x = (x0, x1, x2); [1, scale x] and [1, f(h)] into
+        the buffers."""
+        self._pre_activations(weights, x0, x1, x2)
         self._f(self._pre, self._hidden)
         return self._S * (weights[self._SPLIT] + np.dot(weights[self._SPLIT + 1:], self._hidden))
 
@@ -338,13 +342,7 @@ class AppendixEImpedanceNetwork(ImpedanceNetwork):
     """
 
     def _forward(self, weights, x0, x1, x2):
-        u1 = self._u1
-        s0, s1, s2 = self._scale
-        u1[1] = s0 * x0
-        u1[2] = s1 * x1
-        u1[3] = s2 * x2
-        W = weights[:self._SPLIT].reshape(HIDDEN, 4)
-        np.dot(W, u1, out=self._pre)
+        self._pre_activations(weights, x0, x1, x2)
         t = weights[self._SPLIT] + float(np.dot(weights[self._SPLIT + 1:], self._pre))
         self._f(self._pre.copy(), self._hidden)
         return self._S * (2.0 / (1.0 + np.exp(-t)) - 1.0)
