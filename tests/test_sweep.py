@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from matplotlib.figure import Figure
 
-from drake_contact.app.sweep import Task, load_sweep, run_sweep
+from drake_contact.app.sweep import Task, load_sweep, run_sweep, sweeps_dir
 from drake_contact.app.sweep_figures import plot_heat_map
 
 #: push_constant rests through the tare and pushes from 2.1 s; 1e9 N/m makes
@@ -171,10 +171,7 @@ def test_bad_sweeps_exit_2_with_one_line_naming_the_field(tmp_path, text, words)
     assert "Traceback" not in result.stderr and not (tmp_path / "o").exists()
 
 
-@pytest.mark.parametrize("name", ["stability_nn", "stability_hybrid", "identification_accuracy",
-                                  "robust_nn", "adaptive_hybrid", "hybrid_pi_map",
-                                  "fig6_15_wall_friction", "stability_nn_robust",
-                                  "identify_any_nn_auto"])
+@pytest.mark.parametrize("name", sorted(p.stem for p in sweeps_dir().glob("*.yaml")))
 def test_bundled_sweeps_load_in_full_and_quick(name):
     full, quick = load_sweep(name), load_sweep(name, quick=True)
     assert len(quick.tasks()) <= 4 < len(full.tasks())
