@@ -121,22 +121,28 @@ class RlsEstimator:
         self.last_reset = 0
         self.resets = []
 
+    @staticmethod
+    def change_step(error, samples, last, prediction_error, config):
+        """One sample of the change detector: the filtered error after it and
+        whether to reset (``samples``: this sample's count since the switch,
+        ``last``: the count at the last reset or 0)."""
+        error += CONTROL_PERIOD / config.change_time_constant_s * (prediction_error - error)
+        armed = (samples - last) * CONTROL_PERIOD >= config.change_holdoff_s - 1e-9
+        return error, armed and abs(error) > config.change_threshold_n
+
     def detect(self, phi, f):
         """Filters the a priori error of a sample and resets P on a change
         (before the sample's update); returns whether it reset."""
-        c = self.config
-        if not c.change_threshold_n:
+        if not self.config.change_threshold_n:
             return False
-        alpha = CONTROL_PERIOD / c.change_time_constant_s
-        self.error += alpha * (f - phi @ self.theta - self.error)
-        armed = (self.samples - self.last_reset) * CONTROL_PERIOD >= c.change_holdoff_s - 1e-9
-        if armed and abs(self.error) > c.change_threshold_n:
+        self.error, reset = self.change_step(self.error, self.samples, self.last_reset,
+                                             f - phi @ self.theta, self.config)
+        if reset:
             self.P = self.P0.copy()
             self.error = 0.0
             self.last_reset = self.samples
             self.resets.append(self.samples)
-            return True
-        return False
+        return reset
 
     @staticmethod
     def step(theta, P, phi, f, lam, drift=0.0):
@@ -194,7 +200,6 @@ class RlsIdentifier(LeafSystem):
         if self._detect:
             self._i_change = int(self.DeclareDiscreteState(np.zeros(3)))
             self._P0 = init.P0
-            self._alpha = CONTROL_PERIOD / config.change_time_constant_s
         # Work buffers of one sample's step (see _update).
         n = self._n
         self._values = np.empty(n + n * n)             # the state [theta, P.ravel()] read
@@ -242,12 +247,11 @@ class RlsIdentifier(LeafSystem):
 
     def _detect_change(self, context, state, phi, f):
         """RlsEstimator.detect on the state: may reset the P read."""
-        c = self._config
         error, samples, last = context.get_discrete_state(self._i_change).value()
         samples += 1.0
-        error += self._alpha * (f - np.dot(phi, self._theta) - error)
-        armed = (samples - last) * CONTROL_PERIOD >= c.change_holdoff_s - 1e-9
-        if armed and abs(error) > c.change_threshold_n:
+        error, reset = RlsEstimator.change_step(error, samples, last, f - np.dot(phi, self._theta),
+                                                self._config)
+        if reset:
             self._P[:] = self._P0
             error, last = 0.0, samples
         state.get_mutable_value(self._i_change)[:] = [error, samples, last]
