@@ -85,6 +85,33 @@ def test_contact_damping_adds_minus_d_xdot_to_the_force_command():
     np.testing.assert_allclose(tau, expected, rtol=1e-9, atol=1e-9)
 
 
+def test_force_rate_damping_adds_minus_d_f_times_the_sampled_force_rate():
+    config = HybridControllerConfig(force_gain=1.0, force_integral_gain=0.0,
+                                    contact_force_rate_damping=0.003)
+    controller = HybridController(config)
+    context = controller.CreateDefaultContext()
+    context.SetTime(FIRST_SAMPLE_S)
+    # The first sample switches to contact at 12 N; the next reads 15 N.
+    sample(config, force=12.0, controller=controller, context=context)
+    tau, mode, q, qdot, x, xd = sample(config, force=15.0, controller=controller,
+                                       context=context)
+    J, jdq, M, h = expected_terms(q, qdot)
+    u_x = 400.0 * (np.array([config.approach.start_x, 0, 0]) - x) - 80.0 * xd
+    u_f = 1.0 * (20.0 - 15.0) - 0.003 * (15.0 - 12.0) / 0.001
+    expected = (M @ np.linalg.solve(J, (np.eye(3) - S) @ u_x - jdq) + h + friction(config, qdot)
+                + J.T @ S @ np.array([20.0 + u_f, 0, 0]))
+    assert mode == 1
+    np.testing.assert_allclose(tau, expected, rtol=1e-9, atol=1e-9)
+    # Off (the thesis's law), the same two samples give K_fp (f_d - f) only.
+    plain = dc.replace(config, contact_force_rate_damping=0.0)
+    controller = HybridController(plain)
+    context = controller.CreateDefaultContext()
+    context.SetTime(FIRST_SAMPLE_S)
+    sample(plain, force=12.0, controller=controller, context=context)
+    tau_plain = sample(plain, force=15.0, controller=controller, context=context)[0]
+    np.testing.assert_allclose(tau - tau_plain, J.T @ S @ np.array([-9.0, 0, 0]), atol=1e-9)
+
+
 def test_decoupled_law_uses_the_stiffness_input():
     config = HybridControllerConfig(law="decoupled", decoupled_force_gain=400.0,
                                     decoupled_force_damping=40.0)

@@ -18,7 +18,12 @@ Contact, hybrid law (4.13-4.15), S = diag(1, 0, 0):
     u_f = K_fp (f_d - f) + K_fi sum_k (f_d - f)        (integral as the per-sample sum)
 
 with the option ``contact_damping_x`` D_x adding -D_x xdot to u_f (active
-damping along x, which S otherwise leaves to the environment alone).
+damping along x, which S otherwise leaves to the environment alone), and
+the option ``contact_force_rate_damping`` D_f adding -D_f (f_k - f_{k-1}) / T
+(force-rate feedback: on a wall f = K_e x + B_e xdot, so D_f fdot is a
+damping of D_f K_e along x that scales with the wall's stiffness, as the
+lag of the force feedback's negative damping does; Volpe & Khosla 1993
+compare both forms).
 
 Contact, decoupled law (4.19-4.21, Yoshikawa's form), with k_e from the
 ``stiffness_estimate`` input:
@@ -125,6 +130,9 @@ class HybridControllerConfig:
     # the thesis (0 = its law); velocity feedback in explicit force control
     # (Volpe & Khosla 1993).
     contact_damping_x: float = 0.0
+    # Force-rate damping D_f along x in contact, hybrid law (s): adds
+    # -D_f (f_k - f_{k-1}) / T to the commanded force (0 = the thesis's law).
+    contact_force_rate_damping: float = 0.0
     # Decoupled law: K_fd (1/s^2) and K_fv (1/s).
     decoupled_force_gain: float = 400.0
     decoupled_force_damping: float = 40.0
@@ -163,7 +171,7 @@ class HybridControllerConfig:
             raise ScenarioError(f"{prefix}.law = '{self.law}' is unknown: choose one of "
                                 f"{', '.join(CONTACT_LAWS)}")
         for field in ("position_gain", "velocity_gain", "force_gain", "force_integral_gain",
-                      "contact_damping_x", "decoupled_force_gain", "decoupled_force_damping",
+                      "contact_damping_x", "contact_force_rate_damping", "decoupled_force_gain", "decoupled_force_damping",
                       "decoupled_force_integral_gain", "force_integral_band_n",
                       "pose_integral_gain", "pose_integral_limit"):
             value = getattr(self, field)
@@ -192,10 +200,10 @@ class HybridControllerConfig:
 
 #: Layout of the law's output vector: the exported signals, then the
 #: internal state [approach timer (s), x_d (m), sum of force errors (N),
-#: sums of the y and phi errors (m, rad)].
+#: sums of the y and phi errors (m, rad), the force at this sample (N)].
 _TAU, _MODE, _INFO, _JACOBIAN, _INTERNAL = (slice(0, 3), slice(3, 4), slice(4, 8),
-                                           slice(8, 17), slice(17, 22))
-_LAW_SIZE = 22
+                                           slice(8, 17), slice(17, 23))
+_LAW_SIZE = 23
 
 
 def read_measured_state(context, pose, velocity, joint_positions, joint_velocities):
@@ -234,7 +242,7 @@ class HybridControlLaw(LeafSystem):
         self._stiffness = self.DeclareVectorInputPort("stiffness_estimate", 1)
         held = np.zeros(_LAW_SIZE)
         held[_INFO] = [-1.0, 0.0, 0.0, 0.0]
-        held[_INTERNAL] = [0.0, config.approach.start_x, 0.0, 0.0, 0.0]
+        held[_INTERNAL] = [0.0, config.approach.start_x, 0.0, 0.0, 0.0, 0.0]
         self._held = self.DeclareDiscreteState(held)
         self._control = self.DeclareVectorOutputPort(
             "control", _LAW_SIZE, self._calc_control,
@@ -265,7 +273,7 @@ class HybridControlLaw(LeafSystem):
         f = self._force.Eval(context)[0]
         mode = held[3]
         info = held[_INFO].tolist()
-        timer, x_d, error_sum, y_sum, phi_sum = held[_INTERNAL].tolist()
+        timer, x_d, error_sum, y_sum, phi_sum, f_previous = held[_INTERNAL].tolist()
 
         if mode == APPROACH and f > c.contact_threshold_n:
             mode, error_sum, y_sum, phi_sum = CONTACT, 0.0, 0.0, 0.0
@@ -305,6 +313,8 @@ class HybridControlLaw(LeafSystem):
                 force_x = f_d + c.force_gain * error + c.force_integral_gain * error_sum
                 if c.contact_damping_x:
                     force_x -= c.contact_damping_x * xd[0]
+                if c.contact_force_rate_damping:
+                    force_x -= c.contact_force_rate_damping * (f - f_previous) / CONTROL_PERIOD
             else:
                 low, high = c.stiffness_bounds
                 k_e = min(max(self._stiffness.Eval(context)[0], low), high)
@@ -318,7 +328,7 @@ class HybridControlLaw(LeafSystem):
                + J[0][i] * force_x for i in range(3)]
 
         output.SetFromVector(self._model.command(tau) + [mode] + info + J[0] + J[1] + J[2]
-                             + [timer, x_d, error_sum, y_sum, phi_sum])
+                             + [timer, x_d, error_sum, y_sum, phi_sum, f])
 
 
 class HybridController(Diagram):
@@ -344,7 +354,7 @@ class HybridController(Diagram):
         super().__init__()
         builder = DiagramBuilder()
         law = builder.AddNamedSystem("law", HybridControlLaw(config))
-        split = builder.AddNamedSystem("outputs", Demultiplexer([3, 1, 4, 9, 5]))
+        split = builder.AddNamedSystem("outputs", Demultiplexer([3, 1, 4, 9, 6]))
         builder.Connect(law.get_output_port(), split.get_input_port())
         for port in range(law.num_input_ports()):
             builder.ExportInput(law.get_input_port(port), law.get_input_port(port).get_name())
