@@ -143,6 +143,36 @@ def test_system_sample_in_contact_learns_and_outputs_jt_n():
     np.testing.assert_allclose(system.GetOutputPort("nn_output").Eval(context), n)
 
 
+def test_reference_model_sets_the_force_error_the_network_learns_from():
+    tau = 0.05
+    a = np.exp(-0.001 / tau)
+    config = NnCompensatorConfig(learning_rate=5e-5, reference_time_constant_s=tau)
+    system, context, q, pose = _system_context(config, mode=1, force=15.0)
+    net = CompensatorNetwork(config)
+    inputs = np.concatenate([pose, np.zeros(3), INPUTS[6:]])
+    # First sample in contact: f_m starts at the measured force, one lag step
+    # towards f_d = 20 N.
+    weights = context.get_discrete_state(0).value().copy()
+    update = _sample(system, context)
+    f_m = a * 15.0 + (1 - a) * 20.0
+    expected, _ = net.train(weights, inputs, np.array([f_m - 15.0, -1e-3, 2e-3]))
+    np.testing.assert_allclose(update.get_vector(0).value(), expected, rtol=1e-12)
+    np.testing.assert_allclose(update.get_vector(3).value(), [f_m], rtol=1e-15)
+    # The next sample, at 16 N: f_m lags on from the stored value.
+    ApplySampledUpdates(system, context)
+    system.GetInputPort("force").FixValue(context, [16.0])
+    weights = context.get_discrete_state(0).value().copy()
+    update = _sample(system, context)
+    f_m2 = a * f_m + (1 - a) * 20.0
+    inputs[3:6] = pose  # the previous pose is now this one
+    expected, _ = net.train(weights, inputs, np.array([f_m2 - 16.0, -1e-3, 2e-3]))
+    np.testing.assert_allclose(update.get_vector(0).value(), expected, rtol=1e-12)
+    # Out of contact it is forgotten (the next contact starts from its force).
+    ApplySampledUpdates(system, context)
+    system.GetInputPort("mode").FixValue(context, [0.0])
+    assert np.isnan(_sample(system, context).get_vector(3).value()[0])
+
+
 def test_system_is_silent_and_does_not_learn_in_approach():
     system, context, _, pose = _system_context(NnCompensatorConfig(), mode=0, force=2.0)
     weights = context.get_discrete_state(0).value().copy()
@@ -287,7 +317,8 @@ def test_projection_keeps_the_weights_within_the_bound_of_the_initial_ones():
 
 @pytest.mark.parametrize("field,value,message", [
     ("leakage", -1.0, "must be >= 0"), ("dead_zone_n", float("nan"), "must be >= 0"),
-    ("weight_bound", -0.1, "must be >= 0"), ("leakage", 3e4, "learning_rate * leakage")])
+    ("weight_bound", -0.1, "must be >= 0"), ("leakage", 3e4, "learning_rate * leakage"),
+    ("reference_time_constant_s", -0.05, "must be >= 0")])
 def test_robust_options_are_validated(field, value, message):
     with pytest.raises(ScenarioError, match=rf"controller\.nn\.{field} = .* {re.escape(message)}"):
         dc.replace(NnCompensatorConfig(), **{field: value}).validate()

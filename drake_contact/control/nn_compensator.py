@@ -81,6 +81,13 @@ class NnCompensatorConfig:
     # Projection (Ioannou & Sun 1996 sec. 8.5.4): after each step, |w - w0| <=
     # this bound (0 = unbounded).
     weight_bound: float = 0.0
+    # Reference model (s; 0 = none, the thesis): the force error the network
+    # learns from is f_m - f, with f_m the desired force through a first-order
+    # lag of this time constant, started at the measured force on the switch
+    # to contact; a step of f_d asks the network for a response the contact
+    # can give, not for the step itself (model-reference adaptive control,
+    # Ioannou & Sun 1996 ch. 6; Landau 1979).
+    reference_time_constant_s: float = 0.0
 
     def validate(self, prefix="controller.nn"):
         if not (0 <= self.learning_rate < 1):
@@ -96,7 +103,8 @@ class NnCompensatorConfig:
         if len(self.input_offsets) != INPUTS or not all(np.isfinite(self.input_offsets)):
             raise ScenarioError(f"{prefix}.input_offsets = {self.input_offsets} is out of range: "
                                 f"must be {INPUTS} finite values")
-        for field in ("leakage", "e_modification", "dead_zone_n", "weight_bound"):
+        for field in ("leakage", "e_modification", "dead_zone_n", "weight_bound",
+                      "reference_time_constant_s"):
             value = getattr(self, field)
             if not (np.isfinite(value) and value >= 0):
                 raise ScenarioError(f"{prefix}.{field} = {value} is out of range: must be >= 0")
@@ -286,7 +294,8 @@ class NnCompensationLaw(LeafSystem):
     pose) and the held outputs.
 
     State groups: 0 the weights (159), 1 the previous tip pose (3), 2 the
-    held [J^T n, n] (6).
+    held [J^T n, n] (6), 3 the reference model's force f_m (1; NaN outside
+    contact).
     """
 
     def __init__(self, config: NnCompensatorConfig, y_desired=0.0, phi_desired=0.0):
@@ -306,9 +315,13 @@ class NnCompensationLaw(LeafSystem):
         self._weights = self.DeclareDiscreteState(CompensatorNetwork.pack(W, V))
         self._previous_pose = self.DeclareDiscreteState(3)
         self._held = self.DeclareDiscreteState(6)
+        # The reference model: f_m[k] = a f_m[k-1] + (1 - a) f_d[k], a = e^(-T/tau).
+        tau = config.reference_time_constant_s
+        self._reference_pole = float(np.exp(-CONTROL_PERIOD / tau)) if tau > 0 else None
+        self._reference = self.DeclareDiscreteState([np.nan])
         # Plain ints index the groups (cheaper to pass to pydrake).
-        self._i_weights, self._i_previous, self._i_held = (
-            int(i) for i in (self._weights, self._previous_pose, self._held))
+        self._i_weights, self._i_previous, self._i_held, self._i_reference = (
+            int(i) for i in (self._weights, self._previous_pose, self._held, self._reference))
         self._size = 6 + len(CompensatorNetwork.pack(W, V))
         self._compensation = self.DeclareVectorOutputPort(
             "compensation", self._size, self._calc_compensation,
@@ -333,9 +346,9 @@ class NnCompensationLaw(LeafSystem):
                         self._tau_h.Eval(context))
         if self._learning:
             _, y, phi = pose.tolist()
-            n = net._train(weights, (
-                self._force_desired.Eval(context)[0] - self._force.Eval(context)[0],
-                self._y_desired - y, self._phi_desired - phi))
+            f = self._force.Eval(context)[0]
+            n = net._train(weights, (self._force_target(context, f) - f,
+                                     self._y_desired - y, self._phi_desired - phi))
             value[6:] = net._new
         else:
             value[6:] = weights
@@ -345,6 +358,18 @@ class NnCompensationLaw(LeafSystem):
         J = self._jacobian.Eval(context).reshape(3, 3)
         np.dot(J.T, n_out, out=value[:3])
 
+    def _force_target(self, context, f):
+        """The force the network is asked for at this contact sample: f_d,
+        or with a reference model f_m (see NnCompensatorConfig)."""
+        f_d = self._force_desired.Eval(context)[0]
+        a = self._reference_pole
+        if a is None:
+            return f_d
+        previous = context.get_discrete_state(self._i_reference).value()[0]
+        if previous != previous:  # NaN: the first sample in contact
+            previous = f
+        return a * previous + (1.0 - a) * f_d
+
     def _update(self, context, state):
         if not is_sample_time(context.get_time()):
             return  # t = 0: the first sample is at 1 ms
@@ -352,6 +377,12 @@ class NnCompensationLaw(LeafSystem):
         state.get_mutable_value(self._i_weights)[:] = compensation[6:]
         state.get_mutable_value(self._i_previous)[:] = self._pose.Eval(context)
         state.get_mutable_value(self._i_held)[:] = compensation[:6]
+        if self._reference_pole is not None:
+            reference = state.get_mutable_value(self._i_reference)
+            if self._mode.Eval(context)[0] < 0.5:
+                reference[0] = np.nan
+            else:
+                reference[0] = self._force_target(context, self._force.Eval(context)[0])
 
 
 class NnCompensator(Diagram):
