@@ -27,12 +27,14 @@ def test_adaptive_hybrid_holds_every_level_on_soft_and_stiff_undamped_walls(
     assert abs(m["identified_impedance_rls"]["stiffness"] / stiffness - 1) < 0.05
 
 
-@pytest.mark.parametrize("stiffness,damping", [(7000.0, 100.0), (150000.0, 10.0)])
+@pytest.mark.parametrize("stiffness,damping", [(3000.0, 10.0), (7000.0, 100.0), (150000.0, 10.0)])
 def test_robust_neural_controller_keeps_contact_and_beats_its_hybrid_part(
         tmp_path, stiffness, damping):
     """nn_robust, 10-20 s after contact: RMSE <= 1.5 N and at most half
     its hybrid part's alone; no contact lost (the thesis's form loses it at
-    both points within 30 s of contact: README, "Robust force control")."""
+    the last two within 30 s of contact: README, "Robust force control").
+    3 kN/m with B_e 10 is the grid's hardest point: 450 N s/m of velocity
+    damping and the plain error missed it (1.91 N, 0.59 of the hybrid part's)."""
     scenario = load_scenario("nn_robust", _environment(stiffness, damping), duration=30.0)
     result = run(scenario, tmp_path, figures=False, baseline=True)
     m = result.metrics
