@@ -230,3 +230,18 @@ def test_fig_6_14_needs_the_late_windows_and_no_contact_loss(tmp_path):
     assert row.passed is False and "contact lost 32 times, first 82.600 s" in row.measured
     # Never adapts.
     assert _small_lr_row(tmp_path, lag + [2.0] * 30).passed is False
+
+
+def test_the_long_run_scores_its_baseline_in_the_window_only(tmp_path):
+    """nn_small_lr's hybrid-only baseline runs to 1 s past the scoring
+    window (no row reads the rest), through an option the CLI accepts."""
+    from drake_contact.app.cli import _build_parser
+    jobs = {job.scenario: job for job in JOBS}
+    full = reproduce._run_command(jobs["nn_small_lr"], tmp_path, quick=False)
+    assert "--baseline-window" in full
+    assert "--baseline-window" not in reproduce._run_command(jobs["nn_styrofoam"], tmp_path,
+                                                             quick=False)
+    quick = reproduce._run_command(jobs["nn_small_lr"], tmp_path, quick=True)
+    assert "--no-baseline" in quick and "--baseline-window" not in quick
+    args = _build_parser().parse_args(full[3:])
+    assert args.baseline_window and not args.no_baseline

@@ -43,8 +43,12 @@ def _build_parser():
     run.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                      help="override a scenario field, e.g. environment.stiffness=6.2e4")
     run.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
-    run.add_argument("--no-baseline", action="store_true",
-                     help="neural controller: skip the hybrid-only baseline run")
+    baseline = run.add_mutually_exclusive_group()
+    baseline.add_argument("--no-baseline", action="store_true",
+                          help="neural controller: skip the hybrid-only baseline run")
+    baseline.add_argument("--baseline-window", action="store_true",
+                          help="neural controller: run the hybrid-only baseline only to 1 s "
+                               "past the scoring window (enough for baseline_force_rmse_n)")
     run.add_argument("--meshcat", action="store_true",
                      help="show the arm, wall and contact force live in Meshcat (prints the URL)")
     run.add_argument("--realtime-rate", type=float, default=1.0, metavar="R",
@@ -185,7 +189,8 @@ def _cmd_run(args):
     try:
         result = run(scenario, args.out, progress=terminal_progress(),
                      figures=not args.no_figures,
-                     baseline=False if args.no_baseline else None, meshcat=meshcat,
+                     baseline=(False if args.no_baseline else
+                               "window" if args.baseline_window else None), meshcat=meshcat,
                      record=args.record, realtime_rate=args.realtime_rate if args.meshcat else 0.0)
     except KeyboardInterrupt:
         print("drake-contact: interrupted before the simulation started", file=sys.stderr)
