@@ -241,7 +241,9 @@ def test_the_long_run_scores_its_baseline_in_the_window_only(tmp_path):
     assert "--baseline-window" in full
     assert "--baseline-window" not in reproduce._run_command(jobs["nn_styrofoam"], tmp_path,
                                                              quick=False)
+    assert "--duration" not in full
     quick = reproduce._run_command(jobs["nn_small_lr"], tmp_path, quick=True)
     assert "--no-baseline" in quick and "--baseline-window" not in quick
+    assert quick[quick.index("--duration") + 1] == "85.0"
     args = _build_parser().parse_args(full[3:])
     assert args.baseline_window and not args.no_baseline

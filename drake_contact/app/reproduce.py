@@ -390,10 +390,10 @@ def _run_command(job: Job, out: Path, quick: bool) -> list[str]:
                "--out", str(out / job.scenario)]
     if quick:
         command.append("--no-baseline")
-    elif job.baseline_window:
-        command.append("--baseline-window")
         if job.quick_duration_s is not None:
             command += ["--duration", str(job.quick_duration_s)]
+    elif job.baseline_window:
+        command.append("--baseline-window")
     if job.record:
         command += ["--record", str(out / job.scenario / "playback.html")]
     return command
