@@ -171,9 +171,9 @@ class HybridControllerConfig:
             raise ScenarioError(f"{prefix}.law = '{self.law}' is unknown: choose one of "
                                 f"{', '.join(CONTACT_LAWS)}")
         for field in ("position_gain", "velocity_gain", "force_gain", "force_integral_gain",
-                      "contact_damping_x", "contact_force_rate_damping", "decoupled_force_gain", "decoupled_force_damping",
-                      "decoupled_force_integral_gain", "force_integral_band_n",
-                      "pose_integral_gain", "pose_integral_limit"):
+                      "contact_damping_x", "contact_force_rate_damping", "decoupled_force_gain",
+                      "decoupled_force_damping", "decoupled_force_integral_gain",
+                      "force_integral_band_n", "pose_integral_gain", "pose_integral_limit"):
             value = getattr(self, field)
             if not (np.isfinite(value) and value >= 0):
                 raise ScenarioError(f"{prefix}.{field} = {value} is out of range: must be >= 0")
