@@ -17,21 +17,46 @@ The library layers (:mod:`drake_contact.plant`, :mod:`.sensing`,
 runner, metrics, plotting, visualization, reproduction, benchmark, CLI).
 """
 
-from drake_contact.app.drawing import write_diagram
-from drake_contact.app.metrics import compute_metrics
-from drake_contact.app.plotting import (
-    plot_force_tracking, plot_impedance, plot_signal, plot_tip_errors)
-from drake_contact.app.runner import (
-    AddSignalLoggers, MakeRunDiagram, RunResult, SignalLoggers, run, simulate, simulate_scenario)
-from drake_contact.diagram import ContactStation, MakeContactDiagram, SeedNoise, Signal
-from drake_contact.errors import ScenarioError, SimulationDiverged
-from drake_contact.control.safety_supervisor import SafetyConfig, SafetySupervisor
-from drake_contact.faults import FAULT_KINDS, AddFault, FaultConfig
-from drake_contact.measured import MeasuredSignals
-from drake_contact.plant.arm import ApplySampledUpdates, CalcSampledUpdate
-from drake_contact.plugins import (
-    ContactDetector, MakeController, MakeIdentifier, installed_controllers, installed_identifiers)
-from drake_contact.scenario import Scenario, dump_scenario, load_scenario
+import importlib
+
+# The public names and the modules that define them. They are imported on
+# first use (PEP 562), so ``import drake_contact`` (or a run's process) does
+# not load matplotlib, graphviz or the metrics' scipy.stats unless asked:
+# a run's resident memory is mostly its imports and its log.
+_EXPORTS = {
+    "drake_contact.app.drawing": ("write_diagram",),
+    "drake_contact.app.metrics": ("compute_metrics",),
+    "drake_contact.app.plotting": (
+        "plot_force_tracking", "plot_impedance", "plot_signal", "plot_tip_errors"),
+    "drake_contact.app.runner": (
+        "AddSignalLoggers", "MakeRunDiagram", "RunResult", "SignalLoggers", "run", "simulate",
+        "simulate_scenario"),
+    "drake_contact.diagram": ("ContactStation", "MakeContactDiagram", "SeedNoise", "Signal"),
+    "drake_contact.errors": ("ScenarioError", "SimulationDiverged"),
+    "drake_contact.control.safety_supervisor": ("SafetyConfig", "SafetySupervisor"),
+    "drake_contact.faults": ("FAULT_KINDS", "AddFault", "FaultConfig"),
+    "drake_contact.measured": ("MeasuredSignals",),
+    "drake_contact.plant.arm": ("ApplySampledUpdates", "CalcSampledUpdate"),
+    "drake_contact.plugins": (
+        "ContactDetector", "MakeController", "MakeIdentifier", "installed_controllers",
+        "installed_identifiers"),
+    "drake_contact.scenario": ("Scenario", "dump_scenario", "load_scenario"),
+}
+_MODULE_OF = {name: module for module, names in _EXPORTS.items() for name in names}
+
+
+def __getattr__(name):
+    module = _MODULE_OF.get(name)
+    if module is None:
+        raise AttributeError(f"module 'drake_contact' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value  # later lookups skip __getattr__
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_MODULE_OF))
+
 
 __version__ = "0.1.0"
 
