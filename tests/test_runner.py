@@ -54,3 +54,52 @@ def test_a_window_baseline_stops_after_the_scoring_window_and_scores_it(tmp_path
     t_base = np.load(tmp_path / "short" / "baseline" / "log.npz")["t"]
     assert abs(t_base[-1] - (short["contact_time_s"] + 1.5 + 1.0)) < 2e-3
     assert short["baseline_force_rmse_n"] == full["baseline_force_rmse_n"]
+
+
+def test_a_spooled_log_holds_a_bounded_buffer_and_gives_the_same_log_and_metrics(
+        tmp_path, monkeypatch):
+    from drake_contact.app import runner
+    monkeypatch.setattr(runner, "SPOOL_BUFFER_SAMPLES", 37)  # many flushes, a partial last one
+    diagram, loggers = build()
+    whole = dc.simulate(diagram, loggers)
+
+    diagram, loggers = build()
+    loggers.spool = tmp_path / "spool"
+    spooled = dc.simulate(diagram, loggers)
+    # Never more in memory than the buffer or one drain (a 0.1 s chunk here).
+    assert len(loggers._times) == 101
+    assert isinstance(spooled.log, runner.SpooledLog)
+    assert sorted(spooled.log) == sorted(whole.log)
+    for key in whole.log:
+        assert spooled.log[key].shape == whole.log[key].shape, key
+        np.testing.assert_array_equal(spooled.log[key], whole.log[key], err_msg=key)
+    for key in whole.metrics:
+        if key not in ("wall_time_s", "realtime_factor", "us_per_step"):
+            assert repr(spooled.metrics[key]) == repr(whole.metrics[key]), key
+
+    # run() spools into the run folder, writes log.npz key by key, then
+    # reads from there and removes the spool.
+    scenario = loggers.station.scenario
+    result = runner.run(scenario, tmp_path / "run", figures=False)
+    assert not (tmp_path / "run" / ".log_spool").exists()
+    assert isinstance(result.log, runner.NpzLog)
+    with np.load(tmp_path / "run" / "log.npz") as npz:
+        assert sorted(npz.keys()) == sorted(whole.log)
+        for key in whole.log:
+            np.testing.assert_array_equal(npz[key], whole.log[key], err_msg=key)
+    assert result.log["t"][-1] == whole.log["t"][-1]
+
+
+def test_a_spooled_log_is_cut_at_the_divergence_like_an_in_memory_one(tmp_path):
+    from drake_contact.app import runner
+    # The wall at the tip from the start, far too stiff: the force runs away
+    # within 0.2 s (as in test_diagram's runaway test).
+    scenario = dc.load_scenario("push_constant", ["environment.stiffness=1e9",
+                                                  "controller.push.start_time=0"], seed=2)
+    in_memory = runner.simulate_scenario(scenario)
+    spooled = runner.simulate_scenario(scenario, spool=tmp_path / "spool")
+    assert in_memory.status == spooled.status == "diverged"
+    assert spooled.message == in_memory.message
+    assert isinstance(spooled.log, runner.SpooledLog)
+    for key in in_memory.log:
+        np.testing.assert_array_equal(spooled.log[key], in_memory.log[key], err_msg=key)

@@ -22,8 +22,11 @@ these up to the last logged sample; ``metrics.json`` says why it stopped.
 import dataclasses as dc
 import json
 import os
+import shutil
 import sys
 import time
+import zipfile
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -62,6 +65,87 @@ class RunResult:
     simulator: Simulator | None = dc.field(default=None, repr=False, compare=False)
 
 
+#: A spooled log holds at most this many samples in memory (10 s at 1 kHz,
+#: about 5 MB for the neural run's 61 columns); the rest is on disk.
+SPOOL_BUFFER_SAMPLES = 10_000
+
+
+class SpooledLog(Mapping):
+    """A run's log on disk, read column by column: ``log[key]`` reads that
+    key's samples from its file (a new array each time; nothing is held), so
+    what a reader holds at once is what it asked for. The files are the raw
+    float64 samples of each key, in :class:`SignalLoggers` ``spool``'s
+    folder. The values are the very numbers an in-memory log holds."""
+
+    def __init__(self, folder: Path, shapes: dict, samples: int):
+        self.folder = Path(folder)
+        # key -> (file name, shape of one sample: () or (width,))
+        self._shapes = dict(shapes)
+        self.samples = samples
+
+    def _path(self, key):
+        return self.folder / self._shapes[key][0]
+
+    def __getitem__(self, key):
+        name, shape = self._shapes[key]
+        width = int(np.prod(shape)) if shape else 1
+        data = np.fromfile(self.folder / name, dtype="<f8", count=self.samples * width)
+        return data.reshape((self.samples,) + tuple(shape))
+
+    def __setitem__(self, key, value):
+        """Adds (or replaces) a key of ``samples`` rows, written to disk."""
+        value = np.ascontiguousarray(value, dtype="<f8")
+        if len(value) != self.samples:
+            raise ValueError(f"{key}: {len(value)} samples, the log has {self.samples}")
+        name = self._shapes.get(key, (f"{key}.f8",))[0]
+        value.tofile(self.folder / name)
+        self._shapes[key] = (name, value.shape[1:])
+
+    def __iter__(self):
+        return iter(self._shapes)
+
+    def __len__(self):
+        return len(self._shapes)
+
+    def truncated(self, samples: int) -> "SpooledLog":
+        """The same files read only up to ``samples`` samples."""
+        return SpooledLog(self.folder, self._shapes, min(samples, self.samples))
+
+
+class NpzLog(Mapping):
+    """A ``log.npz`` read key by key (each ``log[key]`` reads that array from
+    the file), for the log :func:`run` returns after it wrote the file."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+        with np.load(self.path) as npz:
+            self._keys = list(npz.keys())
+
+    def __getitem__(self, key):
+        if key not in self._keys:
+            raise KeyError(key)
+        with np.load(self.path) as npz:
+            return npz[key]
+
+    def __iter__(self):
+        return iter(self._keys)
+
+    def __len__(self):
+        return len(self._keys)
+
+
+def save_log(path, log: Mapping):
+    """Writes ``log`` (any mapping of arrays) as an uncompressed ``.npz``
+    that ``np.load`` reads, one key at a time: a spooled log is never held in
+    memory whole (``np.savez(**log)`` would read every key first)."""
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED, allowZip64=True) as archive:
+        for key in log:
+            array = np.asanyarray(log[key])
+            with archive.open(f"{key}.npy", "w", force_zip64=True) as member:
+                np.lib.format.write_array(member, array, allow_pickle=False)
+            del array
+
+
 @dc.dataclass
 class SignalLoggers:
     """The logger :func:`AddSignalLoggers` added: every logged signal of the
@@ -72,20 +156,37 @@ class SignalLoggers:
     :meth:`drain` moves the samples logged so far out of Drake's log (which
     it clears) into one array allocated once for the whole run, so a long
     run holds each sample once; :meth:`collect` drains and returns the log
-    dict, whose arrays are views of that array."""
+    dict, whose arrays are views of that array.
+
+    With ``spool`` (a folder; :func:`run` sets its run folder's
+    ``.log_spool``) the array holds at most SPOOL_BUFFER_SAMPLES samples:
+    :meth:`flush` appends them to one file per log key there, and
+    :meth:`collect` returns a :class:`SpooledLog` reading those files. A run
+    of any length then holds a few MB of log (issue 13: a 600 s neural run
+    under 300 MB resident)."""
 
     station: ContactStation
     # The VectorLogSink of all logged signals, in ``columns`` order.
     sink: VectorLogSink
     # Exported port name -> its columns (a slice) in the sink's vector.
     columns: dict
-    # Samples drained so far: times, and an (n, all columns) array.
+    # A folder to spool the log to (None: the log stays in memory).
+    spool: Path | None = None
+    # Samples drained so far and not flushed: times, and an (n, all columns) array.
     _times: np.ndarray = dc.field(default_factory=lambda: np.empty(0), repr=False)
     _buffer: np.ndarray = dc.field(default_factory=lambda: np.empty((0, 0)), repr=False)
     _n: int = 0
+    # Samples flushed to the spool files.
+    _flushed: int = 0
 
     def reserve(self, samples: int):
-        """Allocates room for ``samples`` samples of every signal."""
+        """Allocates room for ``samples`` samples of every signal (with a
+        spool, at most SPOOL_BUFFER_SAMPLES)."""
+        if self.spool is not None:
+            samples = min(samples, SPOOL_BUFFER_SAMPLES)
+        self._grow(samples)
+
+    def _grow(self, samples: int):
         if samples > len(self._times):
             width = self.sink.get_input_port().size()
             self._times = np.resize(self._times, samples)
@@ -95,35 +196,93 @@ class SignalLoggers:
                 self._buffer[:self._n] = old[:self._n]
 
     def drain(self, context):
-        """Moves the new samples at ``context`` into the array (growing it
-        if needed) and clears Drake's log."""
+        """Moves the new samples at ``context`` into the array (growing it,
+        or with a spool flushing it first, if needed) and clears Drake's log."""
         log = self.sink.FindMutableLog(context)
         k = log.num_samples()
         if k == 0:
             return
+        if self.spool is not None and self._n + k > len(self._times):
+            self.flush()
         end = self._n + k
         if end > len(self._times):
-            self.reserve(max(end, 2 * len(self._times)))
+            # In memory: double. Spooled: what this drain brings, if more.
+            self._grow(end if self.spool is not None else max(end, 2 * len(self._times)))
         self._times[self._n:end] = log.sample_times()
         self._buffer[self._n:end] = log.data().T
         log.Clear()
         self._n = end
 
+    def _spool_keys(self):
+        """(key, sink columns, file name) of every log key, ``t`` first."""
+        yield "t", None, "t.f8"
+        for name, columns in self.columns.items():
+            for key, part in self.station.signals[name].log_as.items():
+                yield key, (columns, part), f"{key}.f8"
+
+    def flush(self):
+        """Appends the samples held in memory to the spool's files (no-op
+        without a spool)."""
+        if self.spool is None:
+            return
+        if self._flushed == 0:
+            self.spool.mkdir(parents=True, exist_ok=True)
+        n = self._n
+        for key, where, name in self._spool_keys():
+            if where is None:
+                data = self._times[:n]
+            else:
+                columns, part = where
+                data = self._buffer[:n, columns][:, part]
+            with open(self.spool / name, "ab" if self._flushed else "wb") as f:
+                f.write(np.ascontiguousarray(data, dtype="<f8").tobytes())
+        self._flushed += n
+        self._n = 0
+
+    def check_spool_space(self, duration: float):
+        """Raises ScenarioError, naming simulation.duration and its limit,
+        when the spool's disk cannot hold a run of ``duration`` s."""
+        columns = self.sink.get_input_port().size() + 1
+        bytes_per_s = columns * 8 / CONTROL_PERIOD
+        folder = self.spool
+        while not folder.exists():
+            folder = folder.parent
+        free = shutil.disk_usage(folder).free
+        limit_s = 0.9 * free / bytes_per_s
+        if duration > limit_s:
+            raise ScenarioError(
+                f"simulation.duration = {duration:g} is out of range: its 1 kHz logs ({columns} "
+                f"columns) would need {duration * bytes_per_s / 1e9:.3g} GB on disk; "
+                f"{folder} has room for at most {limit_s:.0f} s")
+
     def latest(self, name, samples):
         """(times, (samples, size) array) of signal ``name``'s last
-        ``samples`` drained."""
+        ``samples`` drained (with a spool, at most those since the last
+        flush)."""
         start = max(self._n - samples, 0)
         return self._times[start:self._n], self._buffer[start:self._n, self.columns[name]]
 
-    def collect(self, context) -> dict:
-        """The log dict at ``context``: ``t`` and every log key."""
+    def collect(self, context) -> Mapping:
+        """The log at ``context``: ``t`` and every log key (a dict of views
+        of the array; with a spool, a :class:`SpooledLog`)."""
         self.drain(context)
-        n = self._n
-        out = {"t": self._times[:n]}
-        for name, columns in self.columns.items():
-            signal = self._buffer[:n, columns]
-            for key, part in self.station.signals[name].log_as.items():
-                out[key] = signal[:, part]
+        if self.spool is not None:
+            shapes = {}
+            self.flush()
+            for key, where, name in self._spool_keys():
+                shape = ()
+                if where is not None:
+                    columns, part = where
+                    shape = np.empty((0, columns.stop - columns.start))[:, part].shape[1:]
+                shapes[key] = (name, shape)
+            out = SpooledLog(self.spool, shapes, self._flushed)
+        else:
+            n = self._n
+            out = {"t": self._times[:n]}
+            for name, columns in self.columns.items():
+                signal = self._buffer[:n, columns]
+                for key, part in self.station.signals[name].log_as.items():
+                    out[key] = signal[:, part]
         add_stiffness_ratio(out)
         return out
 
@@ -192,7 +351,10 @@ def simulate(diagram, loggers: SignalLoggers, *, progress=None, realtime_rate=0.
     as a standalone HTML playback to this file.
     """
     scenario = loggers.station.scenario
-    check_logs_fit(loggers, scenario.simulation.duration)
+    if loggers.spool is not None:
+        loggers.check_spool_space(scenario.simulation.duration)
+    else:
+        check_logs_fit(loggers, scenario.simulation.duration)
     simulator = Simulator(diagram)
     simulator.set_target_realtime_rate(realtime_rate)
     context = simulator.get_mutable_context()
@@ -241,17 +403,19 @@ def simulate(diagram, loggers: SignalLoggers, *, progress=None, realtime_rate=0.
 
 
 def simulate_scenario(scenario: Scenario, *, progress=None, meshcat=None, record=None,
-                      realtime_rate=0.0) -> RunResult:
+                      realtime_rate=0.0, spool=None) -> RunResult:
     """Builds :func:`MakeRunDiagram` and simulates it. ``meshcat``: show the
     run live there (arm, wall, contact force). ``record``: write a standalone
     HTML playback to this file (checked before simulating; a headless
     Meshcat is made if none is given), also for a diverged or interrupted
-    run. Without ``meshcat`` and ``record`` nothing is drawn."""
+    run. Without ``meshcat`` and ``record`` nothing is drawn. ``spool``: a
+    folder to stream the log to (see :class:`SignalLoggers`)."""
     live = meshcat is not None
     if record is not None:
         record = check_record_path(record)
         meshcat = meshcat or new_meshcat()
     diagram, loggers = MakeRunDiagram(scenario, meshcat=meshcat)
+    loggers.spool = None if spool is None else Path(spool)
     return simulate(diagram, loggers, progress=progress, realtime_rate=realtime_rate,
                     meshcat=meshcat, record=record, live=live)
 
@@ -285,6 +449,8 @@ def _truncate_at_divergence(log, force_limit):
     bad |= ~np.all(np.isfinite(log["joint_positions_true"]), axis=1)
     if bad.any():
         stop = int(np.argmax(bad)) + 1
+        if isinstance(log, SpooledLog):
+            return log.truncated(stop)
         log = {k: v[:stop] for k, v in log.items()}
     return log
 
@@ -310,9 +476,11 @@ def run(scenario: Scenario, out_dir, *, progress=None, figures=True,
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "scenario.yaml").write_text(dump_scenario(scenario))
+    spool = out / ".log_spool"
+    shutil.rmtree(spool, ignore_errors=True)
     try:
         result = simulate_scenario(scenario, progress=progress, meshcat=meshcat, record=record,
-                                   realtime_rate=realtime_rate)
+                                   realtime_rate=realtime_rate, spool=spool)
     except KeyboardInterrupt:
         # Ctrl-C while the diagram was being built: nothing was simulated,
         # but the folder still says what happened.
@@ -320,8 +488,11 @@ def run(scenario: Scenario, out_dir, *, progress=None, figures=True,
         _write_metrics(out, {"status": "interrupted",
                              "message": "interrupted before the simulation started"})
         raise
+    save_log(out / "log.npz", result.log)
+    # The log now lives in log.npz: read from there, key by key.
+    result.log = NpzLog(out / "log.npz")
+    shutil.rmtree(spool, ignore_errors=True)
     log, metrics = result.log, result.metrics
-    np.savez(out / "log.npz", **log)
     if baseline is None:
         baseline = figures and scenario.controller.name == "nn"
     baseline_log = None
