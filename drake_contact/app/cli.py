@@ -15,10 +15,19 @@ reproduce exits with 1 when a thesis result fails its tolerance.
 """
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
-from drake_contact.errors import ScenarioError
+# numpy's OpenBLAS starts worker threads that spin after each call. On a
+# run's 3- to 36-vectors they never share work, yet they cost 9 % of a core
+# beside each run (measured: nn_styrofoam, user CPU 4.12 s against 3.78 s for
+# 3.9 s of wall time), which two runs on two cores fight over. One thread,
+# unless the user chose; set before numpy loads, and inherited by the runs'
+# processes (reproduce's, Dask's workers).
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+from drake_contact.errors import ScenarioError  # noqa: E402
 
 EXIT_BAD_INPUT = 2
 EXIT_DIVERGED = 3
