@@ -193,3 +193,37 @@ def test_contact_figures_need_a_switch(log, scenario, tmp_path):
     log["mode"][:] = 0
     assert plot_contact_figures(log, scenario, tmp_path) == []
     assert list(tmp_path.iterdir()) == []
+
+
+def test_min_max_envelope_keeps_a_long_lines_extremes_in_time_order():
+    from drake_contact.app.plotting import min_max_envelope
+    n = 600_001  # a 600 s run at 1 kHz
+    t = np.arange(n) * 1e-3
+    y = np.sin(2 * np.pi * 0.05 * t)
+    y[123_457] = 9.0     # a one-sample spike
+    y[400_003] = -7.0    # and a one-sample dip
+    y[500_000:520_000] = np.nan  # a gap of 20 s
+    te, ye = min_max_envelope(t, y, 10_000)
+    assert len(te) <= 10_000 and np.all(np.diff(te) > 0)
+    assert np.nanmax(ye) == 9.0 and np.nanmin(ye) == -7.0
+    assert t[123_457] in te and t[400_003] in te
+    # Each kept point is a sample of the line, at its own time.
+    np.testing.assert_array_equal(ye, y[np.round(te * 1e3).astype(int)])
+    # The gap is still a gap; the samples around it are kept.
+    inside = (te > 500.1) & (te < 519.9)
+    assert inside.any() and np.all(np.isnan(ye[inside]))
+    assert np.all(np.isfinite(ye[(te < 499.9) | (te > 520.1)]))
+    # A short line is drawn whole.
+    short_t, short_y = min_max_envelope(t[:5000], y[:5000], 10_000)
+    assert short_t is not None and len(short_y) == 5000
+
+
+def test_plot_signal_draws_a_long_line_as_its_envelope_only_when_asked(log):
+    n = 120_000
+    long = {"t": np.arange(n) * 1e-3, "contact_force_true": np.cos(np.arange(n) * 1e-2)}
+    ax = axes()
+    whole = plot_signal(ax, long, "contact_force_true")
+    assert len(whole.get_xdata()) == n
+    drawn = plot_signal(ax, long, "contact_force_true", max_points=2000)
+    assert len(drawn.get_xdata()) <= 2000
+    assert drawn.get_ydata().max() == long["contact_force_true"].max()

@@ -21,6 +21,7 @@ to mm, angles to mrad and stiffness to kN/m where they say so.
 """
 
 import dataclasses as dc
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +31,32 @@ from matplotlib.lines import Line2D
 #: Thesis units of the impedance columns M_e, B_e, K_e: axis label, scale
 #: from SI (kg, N s/m, N/m).
 _IMPEDANCE_UNITS = (("M_e (kg)", 1.0), ("B_e (N s/m)", 1.0), ("K_e (kN/m)", 1e-3))
+
+#: The runner's figures draw a line of more samples than this from its
+#: min-max envelope (:func:`min_max_envelope`): a 600 s run's lines are
+#: 600,000 samples each, which matplotlib would hold several times over
+#: (hundreds of MB) to draw 880 pixels. Every thesis run is shorter (20 s).
+FIGURE_MAX_POINTS = 50_000
+
+
+def min_max_envelope(t, y, max_points):
+    """The samples of the line (t, y) that keep its look: ``y`` cut into
+    ``max_points // 2`` runs of consecutive samples, and of each run its
+    lowest and highest sample, in time order. Peaks of one sample survive;
+    a run of NaNs only stays a gap. Lines of ``max_points`` samples or
+    fewer are returned as they are."""
+    t, y = np.asarray(t), np.asarray(y)
+    n = len(y)
+    if n <= max_points:
+        return t, y
+    size = -(-n // max(max_points // 2, 1))
+    runs = np.pad(y, (0, -n % size), constant_values=np.nan).reshape(-1, size)
+    nan = np.isnan(runs)
+    low = np.where(nan, np.inf, runs).argmin(axis=1)
+    high = np.where(nan, -np.inf, runs).argmax(axis=1)
+    start = np.arange(len(runs)) * size
+    picks = np.unique(np.minimum(np.concatenate([start + low, start + high]), n - 1))
+    return t[picks], y[picks]
 
 
 @dc.dataclass
@@ -69,7 +96,8 @@ class ImpedanceLines:
     truth: list[Line2D] | None = None
 
 
-def plot_signal(ax, log, key, *, column=None, scale=1.0, label=None, **line_kw) -> Line2D:
+def plot_signal(ax, log, key, *, column=None, scale=1.0, label=None, max_points=None,
+                **line_kw) -> Line2D:
     """Draw one logged signal against time.
 
     Parameters
@@ -88,6 +116,9 @@ def plot_signal(ax, log, key, *, column=None, scale=1.0, label=None, **line_kw) 
         Factor applied to the signal's SI values (1e3 for mm or mrad).
     label : str, optional
         Legend label; default ``key`` (with ``[column]`` when given).
+    max_points : int, optional
+        Draw a longer line from its min-max envelope of this many points
+        (:func:`min_max_envelope`); default: every sample.
     **line_kw
         Passed to ``ax.plot`` (``color``, ``lw``, ``ls``, ...).
 
@@ -95,7 +126,7 @@ def plot_signal(ax, log, key, *, column=None, scale=1.0, label=None, **line_kw) 
     -------
     matplotlib.lines.Line2D
         The line; its x data is ``log["t"]``, its y data the signal times
-        ``scale``.
+        ``scale`` (with ``max_points``, the envelope's samples of them).
     """
     values = np.asarray(log[key])
     if column is not None:
@@ -104,11 +135,15 @@ def plot_signal(ax, log, key, *, column=None, scale=1.0, label=None, **line_kw) 
         raise ValueError(f"log['{key}'] has {values.shape[1]} columns: choose one with column=")
     if label is None:
         label = key if column is None else f"{key}[{column}]"
-    (line,) = ax.plot(log["t"], values * scale, label=label, **line_kw)
+    t, y = log["t"], values * scale
+    if max_points is not None:
+        t, y = min_max_envelope(t, y, max_points)
+    (line,) = ax.plot(t, y, label=label, **line_kw)
     return line
 
 
-def plot_force_tracking(ax, log, *, scenario=None, label=None) -> ForceTrackingLines:
+def plot_force_tracking(ax, log, *, scenario=None, label=None,
+                        max_points=None) -> ForceTrackingLines:
     """Draw the contact force against time: the true force, the sensor's
     raw and filtered forces and the desired force, each when in the log.
 
@@ -124,6 +159,8 @@ def plot_force_tracking(ax, log, *, scenario=None, label=None) -> ForceTrackingL
         (``controller.hybrid.contact_threshold_n``, N) is drawn dotted.
     label : str, optional
         Legend label of the true force; default ``"true"``.
+    max_points : int, optional
+        As for :func:`plot_signal`.
 
     Returns
     -------
@@ -133,13 +170,15 @@ def plot_force_tracking(ax, log, *, scenario=None, label=None) -> ForceTrackingL
     measured = filtered = desired = threshold = None
     if "force_measured" in log:
         measured = plot_signal(ax, log, "force_measured", label="measured (raw)", lw=0.7,
-                               alpha=0.6)
+                               alpha=0.6, max_points=max_points)
     if "force_filtered" in log:
-        filtered = plot_signal(ax, log, "force_filtered", label="filtered (controller)", lw=1.2)
-    true = plot_signal(ax, log, "contact_force_true", label=label or "true", color="k", lw=1.2)
+        filtered = plot_signal(ax, log, "force_filtered", label="filtered (controller)", lw=1.2,
+                               max_points=max_points)
+    true = plot_signal(ax, log, "contact_force_true", label=label or "true", color="k", lw=1.2,
+                       max_points=max_points)
     if "force_desired" in log:
         desired = plot_signal(ax, log, "force_desired", label="desired", color="r", ls="--",
-                              lw=1)
+                              lw=1, max_points=max_points)
     if scenario is not None:
         threshold = ax.axhline(scenario.controller.hybrid.contact_threshold_n, color="grey",
                                ls=":", lw=1)
@@ -148,7 +187,7 @@ def plot_force_tracking(ax, log, *, scenario=None, label=None) -> ForceTrackingL
                               threshold=threshold)
 
 
-def plot_tip_errors(ax, log, scenario) -> TipErrorLines:
+def plot_tip_errors(ax, log, scenario, *, max_points=None) -> TipErrorLines:
     """Draw the tip's errors from the position the hybrid controller holds,
     y - y_d (mm) and phi - phi_d (mrad), against time.
 
@@ -163,6 +202,8 @@ def plot_tip_errors(ax, log, scenario) -> TipErrorLines:
     scenario : drake_contact.scenario.Scenario
         Gives y_d and phi_d (``controller.hybrid.y_desired``, m, and
         ``.phi_desired``, rad).
+    max_points : int, optional
+        As for :func:`plot_signal`.
 
     Returns
     -------
@@ -174,9 +215,10 @@ def plot_tip_errors(ax, log, scenario) -> TipErrorLines:
     pose = np.asarray(log["tip_pose_true"])
     errors = {"t": log["t"], "y": pose[:, 1] - hybrid.y_desired,
               "phi": pose[:, 2] - hybrid.phi_desired}
-    lines = TipErrorLines(y=plot_signal(ax_y, errors, "y", scale=1e3, label="y error (mm)"),
+    lines = TipErrorLines(y=plot_signal(ax_y, errors, "y", scale=1e3, label="y error (mm)",
+                                        max_points=max_points),
                           phi=plot_signal(ax_phi, errors, "phi", scale=1e3,
-                                          label="phi error (mrad)"))
+                                          label="phi error (mrad)", max_points=max_points))
     if ax_y is ax_phi:
         ax_y.set_ylabel("tip error (mm, mrad)")
     else:
@@ -185,7 +227,8 @@ def plot_tip_errors(ax, log, scenario) -> TipErrorLines:
     return lines
 
 
-def plot_impedance(axes, log, name, *, truth=True, **line_kw) -> ImpedanceLines:
+def plot_impedance(axes, log, name, *, truth=True, max_points=None,
+                   **line_kw) -> ImpedanceLines:
     """Draw an online identifier's estimates of the environment's impedance
     M_e (kg), B_e (N s/m) and K_e (kN/m) against time, on three Axes.
 
@@ -200,6 +243,8 @@ def plot_impedance(axes, log, name, *, truth=True, **line_kw) -> ImpedanceLines:
         The identifier's name in the scenario (e.g. ``"rls"``).
     truth : bool, optional
         Also draw the true impedance, dashed black (default True).
+    max_points : int, optional
+        As for :func:`plot_signal`.
     **line_kw
         Passed to ``ax.plot`` for the estimates (``color``, ``lw``, ...).
 
@@ -212,12 +257,26 @@ def plot_impedance(axes, log, name, *, truth=True, **line_kw) -> ImpedanceLines:
     lines = ImpedanceLines(estimates=[], truth=[] if truth else None)
     for k, (ax, (ylabel, scale)) in enumerate(zip(axes, _IMPEDANCE_UNITS, strict=True)):
         lines.estimates.append(plot_signal(ax, log, f"impedance_{name}", column=k,
-                                           scale=scale, label=name, **line_kw))
+                                           scale=scale, label=name, max_points=max_points,
+                                           **line_kw))
         if truth:
             lines.truth.append(plot_signal(ax, log, "true_impedance", column=k, scale=scale,
-                                           label="truth", color="k", ls="--", lw=1))
+                                           label="truth", color="k", ls="--", lw=1,
+                                           max_points=max_points))
         ax.set_ylabel(ylabel)
     return lines
+
+
+# The runner's figures draw through these: long lines as their envelopes.
+_signal = functools.partial(plot_signal, max_points=FIGURE_MAX_POINTS)
+_force_tracking = functools.partial(plot_force_tracking, max_points=FIGURE_MAX_POINTS)
+_tip_errors = functools.partial(plot_tip_errors, max_points=FIGURE_MAX_POINTS)
+_impedance = functools.partial(plot_impedance, max_points=FIGURE_MAX_POINTS)
+
+
+def _plot(ax, t, y, *args, **kw):
+    """``ax.plot(t, y, ...)`` of a line drawn as its envelope when long."""
+    return ax.plot(*min_max_envelope(t, y, FIGURE_MAX_POINTS), *args, **kw)
 
 
 def _new_figure(figsize, nrows=1, ncols=1, **subplots_kw):
@@ -255,17 +314,17 @@ def plot_main_signals(log: dict, scenario, out_dir) -> Path:
     """Contact force, penetration, tip pose and joint torques over time."""
     t = log["t"]
     fig, axes = _new_figure((8, 9), 4, 1, sharex=True)
-    plot_signal(axes[0], log, "contact_force_true", label="true normal force")
+    _signal(axes[0], log, "contact_force_true", label="true normal force")
     axes[0].set_ylabel("force (N)")
-    plot_signal(axes[1], log, "penetration_true", scale=1e3, label="true penetration")
+    _signal(axes[1], log, "penetration_true", scale=1e3, label="true penetration")
     axes[1].set_ylabel("penetration (mm)")
-    axes[2].plot(t, (log["tip_pose_true"][:, 0] - scenario.environment.surface_x) * 1e3,
-                 label="x - surface (mm)")
-    plot_signal(axes[2], log, "tip_pose_true", column=1, scale=1e3, label="y (mm)")
-    plot_signal(axes[2], log, "tip_pose_true", column=2, scale=1e3, label="phi (mrad)")
+    _plot(axes[2], t, (log["tip_pose_true"][:, 0] - scenario.environment.surface_x) * 1e3,
+          label="x - surface (mm)")
+    _signal(axes[2], log, "tip_pose_true", column=1, scale=1e3, label="y (mm)")
+    _signal(axes[2], log, "tip_pose_true", column=2, scale=1e3, label="phi (mrad)")
     axes[2].set_ylabel("tip pose (mm, mrad)")
     for i in range(3):
-        plot_signal(axes[3], log, "joint_torque_applied", column=i, label=f"joint {i + 1}")
+        _signal(axes[3], log, "joint_torque_applied", column=i, label=f"joint {i + 1}")
     axes[3].set_ylabel("applied torque (N m)")
     axes[3].set_xlabel("time (s)")
     env = scenario.environment
@@ -293,7 +352,7 @@ def plot_sensor_figures(log: dict, scenario, out_dir) -> list[Path]:
     sample = _window(log, (t >= start) & (t < start + 1.0),
                      keys=("force_measured", "force_filtered", "contact_force_true"))
     fig, ax = _new_figure((8, 3.5))
-    plot_force_tracking(ax, sample)
+    _force_tracking(ax, sample)
     ax.set_xlabel("time (s)")
     ax.set_title("Fig 4.4: signal from the force sensor")
     paths.append(_save(fig, ax, out_dir / "fig4_4_raw_force.png"))
@@ -344,10 +403,10 @@ def plot_contact_figures(log: dict, scenario, out_dir, *, baseline_log=None) -> 
     t_c = _switch_time(log)
     paths = []
     fig, ax = _new_figure((8, 4))
-    plot_force_tracking(ax, _window(log, (t >= t_c - 0.3) & (t <= t_c + 0.7), t0=t_c,
-                                    keys=("force_measured", "force_filtered",
-                                          "contact_force_true", "force_desired")),
-                        scenario=scenario)
+    _force_tracking(ax, _window(log, (t >= t_c - 0.3) & (t <= t_c + 0.7), t0=t_c,
+                                keys=("force_measured", "force_filtered",
+                                      "contact_force_true", "force_desired")),
+                    scenario=scenario)
     ax.axvline(0, color="grey", ls=":", lw=1)
     ax.set_xlabel("time from the switch (s)")
     ax.set_title("Fig 4.2: force from position control to hybrid control")
@@ -369,10 +428,11 @@ def plot_contact_figures(log: dict, scenario, out_dir, *, baseline_log=None) -> 
         keys = ("contact_force_true", "tip_pose_true") + (("force_desired",)
                                                           if run_log is log else ())
         after = _window(run_log, run_log["t"] >= run_t_c - 0.5, t0=run_t_c, keys=keys)
-        plot_force_tracking(axes[0], after, label=name).true.set(color=colour, lw=0.9)
-        tip = plot_tip_errors(axes[1:], after, scenario)
+        _force_tracking(axes[0], after, label=name).true.set(color=colour, lw=0.9)
+        tip = _tip_errors(axes[1:], after, scenario)
         for line in (tip.y, tip.phi):
             line.set(color=colour, lw=0.9, label=name)
+        del after  # before the next run's window is read (a long run's are tens of MB)
     axes[0].set_ylabel("true normal force (N)")
     axes[2].set_xlabel("time from the first contact (s)")
     fig.suptitle(f"{label}force tracking; {scenario.description}", fontsize=9)
@@ -382,7 +442,7 @@ def plot_contact_figures(log: dict, scenario, out_dir, *, baseline_log=None) -> 
         after = _window(log, t >= t_c - 0.5, t0=t_c, keys=("nn_output",))
         fig, axes = _new_figure((8, 6), 3, 1, sharex=True)
         for k, (name, unit) in enumerate([("n_x", "N"), ("n_y", "N"), ("n_phi", "N m")]):
-            plot_signal(axes[k], after, "nn_output", column=k, label=name, lw=0.8)
+            _signal(axes[k], after, "nn_output", column=k, label=name, lw=0.8)
             axes[k].set_ylabel(f"{name} ({unit})")
         axes[2].set_xlabel("time from the first contact (s)")
         fig.suptitle(f"{label}the compensator's output n (J^T n is added to tau_h)",
@@ -442,25 +502,25 @@ def _plot_identification(log, t, t_c, configs, span_s, title, path) -> Path:
     window = _window(log, keep, t0=t_c)
     true_k = window["true_impedance"][:, 2] / 1e3
     fig, axes = _new_figure((11, 8), 3, 2, sharex=True)
-    plot_force_tracking(axes[0, 0], _window(log, keep, t0=t_c,
-                                            keys=("force_filtered", "contact_force_true")))
+    _force_tracking(axes[0, 0], _window(log, keep, t0=t_c,
+                                        keys=("force_filtered", "contact_force_true")))
     axes[0, 0].set_ylabel("force f (N)")
     ax = axes[1, 0]
-    plot_signal(ax, window, "displacement_measured", scale=1e3, lw=0.8,
-                label="xe measured (from the switch point)")
+    _signal(ax, window, "displacement_measured", scale=1e3, lw=0.8,
+            label="xe measured (from the switch point)")
     pen = log["penetration_true"]
-    ax.plot(window["t"], (window["penetration_true"] - pen[np.argmax(t >= t_c)]) * 1e3, "k--",
-            lw=0.8, label="true, from the switch point")
+    _plot(ax, window["t"], (window["penetration_true"] - pen[np.argmax(t >= t_c)]) * 1e3, "k--",
+          lw=0.8, label="true, from the switch point")
     ax.set_ylabel("displacement xe (mm)")
     ax = axes[2, 0]
-    plot_signal(ax, window, "stiffness_ratio", scale=1e-3, lw=0.8, label="f / xe (measured)")
-    plot_signal(ax, window, "true_impedance", column=2, scale=1e-3, color="k", ls="--", lw=1,
-                label="true K_e")
+    _signal(ax, window, "stiffness_ratio", scale=1e-3, lw=0.8, label="f / xe (measured)")
+    _signal(ax, window, "true_impedance", column=2, scale=1e-3, color="k", ls="--", lw=1,
+            label="true K_e")
     ax.set_ylabel("f / xe (kN/m)")
     ax.set_xlabel("time from the switch (s)")
     for i, (colour, config) in enumerate(zip(_IDENTIFIER_COLOURS, configs)):
-        plot_impedance(axes[:, 1], window, config.name, truth=i == len(configs) - 1,
-                       color=colour, lw=0.9)
+        _impedance(axes[:, 1], window, config.name, truth=i == len(configs) - 1,
+                   color=colour, lw=0.9)
     for ax in axes[2]:
         _clip_to_truth(ax, true_k)
     axes[2, 1].set_xlabel("time from the switch (s)")
@@ -481,8 +541,8 @@ def _plot_network_error(log, t, t_c, configs, number, scenario, path) -> Path:
         estimate = log.get(f"force_estimate_{config.name}")
         if estimate is None:
             continue
-        ax.plot(t[window] - t_c, log["force_filtered"][window] - estimate[window], color=colour,
-                lw=0.8, label=config.name)
+        _plot(ax, t[window] - t_c, log["force_filtered"][window] - estimate[window],
+              color=colour, lw=0.8, label=config.name)
     ax.set_xlabel("time from the switch (s)")
     ax.set_ylabel("output error f - f_hat (N)")
     ax.set_title(f"Fig {number}: error of the network's output, {scenario.description}",

@@ -508,6 +508,7 @@ def run(scenario: Scenario, out_dir, *, progress=None, figures=True,
                     "adaptation_time_s"):
             if key in base.metrics:
                 metrics[f"baseline_{key}"] = base.metrics[key]
+        del base  # its diagram and simulator: nothing reads them again
     _write_metrics(out, metrics)
     if figures and len(log["t"]) > 1:
         from drake_contact.app.plotting import (
