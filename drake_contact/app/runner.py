@@ -83,9 +83,6 @@ class SpooledLog(Mapping):
         self._shapes = dict(shapes)
         self.samples = samples
 
-    def _path(self, key):
-        return self.folder / self._shapes[key][0]
-
     def __getitem__(self, key):
         name, shape = self._shapes[key]
         width = int(np.prod(shape)) if shape else 1
@@ -214,11 +211,14 @@ class SignalLoggers:
         self._n = end
 
     def _spool_keys(self):
-        """(key, sink columns, file name) of every log key, ``t`` first."""
-        yield "t", None, "t.f8"
+        """(key, (sink columns, part) or None for ``t``, file name, shape of
+        one sample) of every log key, ``t`` first."""
+        yield "t", None, "t.f8", ()
         for name, columns in self.columns.items():
+            width = columns.stop - columns.start
             for key, part in self.station.signals[name].log_as.items():
-                yield key, (columns, part), f"{key}.f8"
+                shape = () if isinstance(part, int) else (len(range(width)[part]),)
+                yield key, (columns, part), f"{key}.f8", shape
 
     def flush(self):
         """Appends the samples held in memory to the spool's files (no-op
@@ -228,7 +228,7 @@ class SignalLoggers:
         if self._flushed == 0:
             self.spool.mkdir(parents=True, exist_ok=True)
         n = self._n
-        for key, where, name in self._spool_keys():
+        for _, where, name, _ in self._spool_keys():
             if where is None:
                 data = self._times[:n]
             else:
@@ -239,11 +239,15 @@ class SignalLoggers:
         self._flushed += n
         self._n = 0
 
+    def log_rate(self):
+        """(columns with ``t``, bytes per simulated second) of the log."""
+        columns = self.sink.get_input_port().size() + 1
+        return columns, columns * 8 / CONTROL_PERIOD
+
     def check_spool_space(self, duration: float):
         """Raises ScenarioError, naming simulation.duration and its limit,
         when the spool's disk cannot hold a run of ``duration`` s."""
-        columns = self.sink.get_input_port().size() + 1
-        bytes_per_s = columns * 8 / CONTROL_PERIOD
+        columns, bytes_per_s = self.log_rate()
         folder = self.spool
         while not folder.exists():
             folder = folder.parent
@@ -267,14 +271,8 @@ class SignalLoggers:
         of the array; with a spool, a :class:`SpooledLog`)."""
         self.drain(context)
         if self.spool is not None:
-            shapes = {}
             self.flush()
-            for key, where, name in self._spool_keys():
-                shape = ()
-                if where is not None:
-                    columns, part = where
-                    shape = np.empty((0, columns.stop - columns.start))[:, part].shape[1:]
-                shapes[key] = (name, shape)
+            shapes = {key: (name, shape) for key, _, name, shape in self._spool_keys()}
             out = SpooledLog(self.spool, shapes, self._flushed)
         else:
             n = self._n
@@ -325,8 +323,7 @@ def check_logs_fit(loggers: SignalLoggers, duration: float):
     """Raises ScenarioError, naming simulation.duration and its limit on
     this machine, when the run's 1 kHz logs would not fit in
     LOG_MEMORY_SHARE of the physical memory (they are held in memory)."""
-    columns = loggers.sink.get_input_port().size() + 1
-    bytes_per_s = columns * 8 / CONTROL_PERIOD
+    columns, bytes_per_s = loggers.log_rate()
     memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     limit_s = LOG_MEMORY_SHARE * memory / bytes_per_s
     if duration > limit_s:
