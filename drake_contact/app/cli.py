@@ -27,6 +27,25 @@ from pathlib import Path
 # processes (reproduce's, Dask's workers).
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
+
+def _return_freed_arrays_to_the_system():
+    """glibc serves an allocation of 128 KiB or more by its own mmap, and
+    frees it to the system, only until the first such free: then it raises
+    that threshold (up to 32 MiB), and a long run's 4.8 MB columns, read
+    by the metrics and figures one after the other, stay in the process's
+    heap. Fixing the threshold returns each array when freed: a 600 s
+    neural run with figures peaks at 300 MB instead of 313 (ru_maxrss).
+    No per-step allocation is that large. Not glibc: nothing to do."""
+    try:
+        import ctypes
+        M_MMAP_THRESHOLD = -3
+        ctypes.CDLL("libc.so.6").mallopt(M_MMAP_THRESHOLD, 128 * 1024)
+    except (OSError, AttributeError):
+        pass
+
+
+_return_freed_arrays_to_the_system()
+
 from drake_contact.errors import ScenarioError  # noqa: E402
 
 EXIT_BAD_INPUT = 2
