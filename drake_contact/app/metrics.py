@@ -170,7 +170,8 @@ def tracking_metrics(log: dict, scenario: Scenario) -> dict:
         out.update(step_metrics(log, window))
         if "joint_torque_applied" in log:
             torque = log["joint_torque_applied"][window]
-            out["torque_rms_nm"] = float(np.sqrt(np.mean(np.sum(torque**2, axis=1))))
+            np.square(torque, out=torque)  # in place: a long run's is tens of MB
+            out["torque_rms_nm"] = float(np.sqrt(np.mean(np.sum(torque, axis=1))))
     if scenario.force_reference.sine_amplitude_n == 0:
         out.update(level_metrics(log, t_contact, s))
     return out

@@ -43,19 +43,22 @@ def min_max_envelope(t, y, max_points):
     """The samples of the line (t, y) that keep its look: ``y`` cut into
     ``max_points // 2`` runs of consecutive samples, and of each run its
     lowest and highest sample, in time order. Peaks of one sample survive;
-    a run of NaNs only stays a gap. Lines of ``max_points`` samples or
-    fewer are returned as they are."""
+    a run holding a NaN gives that NaN (numpy's argmin and argmax pick it),
+    so gaps stay gaps. Lines of ``max_points`` samples or fewer are
+    returned as they are. No copy of the line is made."""
     t, y = np.asarray(t), np.asarray(y)
     n = len(y)
     if n <= max_points:
         return t, y
     size = -(-n // max(max_points // 2, 1))
-    runs = np.pad(y, (0, -n % size), constant_values=np.nan).reshape(-1, size)
-    nan = np.isnan(runs)
-    low = np.where(nan, np.inf, runs).argmin(axis=1)
-    high = np.where(nan, -np.inf, runs).argmax(axis=1)
+    whole = n // size * size
+    runs = y[:whole].reshape(-1, size)  # a view
     start = np.arange(len(runs)) * size
-    picks = np.unique(np.minimum(np.concatenate([start + low, start + high]), n - 1))
+    picks = [start + runs.argmin(axis=1), start + runs.argmax(axis=1)]
+    if whole < n:
+        tail = y[whole:]
+        picks.append(whole + np.array([tail.argmin(), tail.argmax()]))
+    picks = np.unique(np.concatenate(picks))
     return t[picks], y[picks]
 
 
@@ -135,10 +138,12 @@ def plot_signal(ax, log, key, *, column=None, scale=1.0, label=None, max_points=
         raise ValueError(f"log['{key}'] has {values.shape[1]} columns: choose one with column=")
     if label is None:
         label = key if column is None else f"{key}[{column}]"
-    t, y = log["t"], values * scale
+    t = log["t"]
     if max_points is not None:
-        t, y = min_max_envelope(t, y, max_points)
-    (line,) = ax.plot(t, y, label=label, **line_kw)
+        # The same samples as the envelope of values * scale (scaling keeps
+        # which sample is a run's lowest and highest), without that copy.
+        t, values = min_max_envelope(t, values, max_points)
+    (line,) = ax.plot(t, values * scale, label=label, **line_kw)
     return line
 
 
@@ -300,6 +305,9 @@ def _window(log, keep, *, t0=0.0, keys=None) -> dict:
     """The samples of ``log`` where ``keep`` is true, with time counted from
     ``t0``; only ``keys`` (and ``t``) when given."""
     keys = log.keys() if keys is None else [key for key in keys if key in log]
+    inside = np.flatnonzero(keep)
+    if len(inside) and inside[-1] - inside[0] + 1 == len(inside):
+        keep = slice(inside[0], inside[-1] + 1)  # one span: views, not copies
     out = {key: np.asarray(log[key])[keep] for key in keys}
     out["t"] = np.asarray(log["t"])[keep] - t0
     return out
