@@ -16,6 +16,11 @@ estimate 1 s after the switch (against the truth at that sample; each entry
 None where the truth is 0 or the log ends sooner).
 ``stiffness_ratio`` is the thesis's "measured" stiffness f / xe from the
 filtered force and the estimated displacement since the switch.
+``identifiability_bound`` (runs with identifiers) is the Cramér-Rao bound on
+M_e, B_e, K_e from the run's contact samples (see
+:mod:`drake_contact.app.identifiability`): ``std`` and ``relative`` (to the
+truth), one standard deviation, what no unbiased identifier can beat;
+``identifiability_bound_1s`` the same from the first second after the switch.
 
 Time-varying environments (a K_e or B_e that changes after the switch, e.g.
 the ``stiffness_ramp`` and ``stiffness_step`` faults): ``identification_tracking_<name>``
@@ -48,6 +53,7 @@ import copy
 
 import numpy as np
 
+from drake_contact.app.identifiability import identifiability_bound
 from drake_contact.app.spectra import sensor_metrics
 from drake_contact.control.safety_supervisor import (
     CLAMPED, REFLEX, SAFETY_STATES, STOP_REASONS)
@@ -108,6 +114,13 @@ def compute_metrics(scenario: Scenario, log: dict, wall_s: float) -> dict:
     metrics.update(tracking_metrics(log, scenario))
     metrics.update(stability_metrics(log, scenario.scoring))
     metrics.update(identification_metrics(log, scenario.identifiers))
+    t_contact = _switch_time(log)
+    if scenario.identifiers and t_contact is not None:
+        for key, until in (("identifiability_bound", None),
+                           ("identifiability_bound_1s", EARLY_IDENTIFICATION_S)):
+            bound = identifiability_bound(log, t_contact, scenario.dsp.tare_window_s, until)
+            if bound is not None:
+                metrics[key] = bound
     metrics.update(fault_metrics(log, scenario))
     metrics.update(safety_metrics(log, scenario))
     warnings = tare_warnings(log, scenario)
@@ -337,12 +350,19 @@ def relative_errors(estimate, truth) -> dict:
             for key, r in zip(("mass", "damping", "stiffness"), rel)}
 
 
+def _switch_time(log: dict):
+    """The time of the first switch to contact (s), or None."""
+    if "contact_info" not in log or not np.any(log["contact_info"][:, 0] >= 0):
+        return None
+    return float(log["contact_info"][-1, 0])
+
+
 def identification_metrics(log: dict, identifiers) -> dict:
     """Final estimates, settling times and relative errors against truth."""
-    if not identifiers or "contact_info" not in log or not np.any(log["contact_info"][:, 0] >= 0):
+    t_contact = _switch_time(log)
+    if not identifiers or t_contact is None:
         return {}
     t = log["t"]
-    t_contact = float(log["contact_info"][-1, 0])
     truth = log["true_impedance"][-1]
     early = t >= t_contact + EARLY_IDENTIFICATION_S - 1e-9
     i_early = int(np.argmax(early)) if early.any() else None
