@@ -21,7 +21,9 @@ relative to the signal's scale (its largest magnitude in the fixture), and
 when it first exceeds 1e-9 of that scale.
 """
 
+import ctypes
 import json
+import platform
 import sys
 from importlib import metadata
 from pathlib import Path
@@ -43,7 +45,31 @@ PACKAGES = ("drake", "numpy", "scipy")
 
 
 def versions() -> dict:
-    return {name: metadata.version(name) for name in PACKAGES}
+    """The package versions, and the CPU kernels numpy dispatches to: the
+    same versions on another CPU (another OpenBLAS core, other SIMD) sum in
+    another order. Measured: the fixtures recorded on one cloud CPU and run
+    on another differ by up to 1e-12 of scale in the neural scenarios."""
+    return {name: metadata.version(name) for name in PACKAGES} | {"cpu": cpu_kernels()}
+
+
+def cpu_kernels() -> str:
+    """The machine, numpy's enabled SIMD features and OpenBLAS's core, e.g.
+    ``x86_64 AVX,AVX2,... Haswell``; a part that cannot be read is ``?``."""
+    try:
+        from numpy._core._multiarray_umath import __cpu_features__
+        simd = ",".join(sorted(name for name, on in __cpu_features__.items() if on))
+    except ImportError:
+        simd = "?"
+    core = "?"
+    libs = Path(np.__file__).resolve().parent.parent / "numpy.libs"
+    for lib in sorted(libs.glob("libscipy_openblas*.so")):
+        for symbol in ("scipy_openblas_get_corename64_", "scipy_openblas_get_corename"):
+            get = getattr(ctypes.CDLL(str(lib)), symbol, None)
+            if get is not None:
+                get.restype = ctypes.c_char_p
+                core = get().decode()
+                break
+    return f"{platform.machine()} {simd} {core}"
 
 
 def simulate_log(scenario_name: str, duration: float) -> dict:

@@ -1,8 +1,9 @@
 """Every bundled scenario against its golden log (tests/golden_logs.py).
 
 Bit-identical when the packages that compute the logs are the versions that
-recorded them; within RTOL of each signal's scale otherwise (a new Drake,
-numpy or scipy may order floating-point sums differently).
+recorded them, on the same CPU kernels (golden_logs.versions); within RTOL
+of each signal's scale otherwise (a new Drake, numpy or scipy, or another
+OpenBLAS core or SIMD set, may order floating-point sums differently).
 
 What the fixtures can and cannot tell. The closed loop amplifies rounding:
 measured on nn_styrofoam, adding one ulp to the motor torque at every
@@ -54,4 +55,5 @@ def test_golden_log(name):
             t = golden["log/t"][row[0]]
             pytest.fail(f"{name}: '{signal}' differs from the golden log first at t = {t:.3f} s: "
                         f"{actual[tuple(row)]!r} vs {expected[tuple(row)]!r}"
-                        + ("" if exact else f" (beyond rtol {RTOL}; versions differ)"))
+                        + ("" if exact else f" (beyond rtol {RTOL}; versions or CPU kernels "
+                                            "differ)"))
