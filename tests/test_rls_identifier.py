@@ -319,7 +319,8 @@ def test_raw_matched_signals_feed_the_unfiltered_force_and_the_chain_filtered_ki
     """``signals: raw_matched`` wires the DSP's unfiltered force straight in,
     and the tip pose and the unfiltered differences each through the sensor
     chain's nominal model (one filter system each, shared by all such
-    identifiers)."""
+    identifiers with the same chain model: rls_robust's is zoh, so its
+    filters are named ..._zoh)."""
     from drake_contact import load_scenario
     from drake_contact.identification.identifiers import AddIdentifiers
     from pydrake.systems.framework import DiagramBuilder
@@ -327,12 +328,13 @@ def test_raw_matched_signals_feed_the_unfiltered_force_and_the_chain_filtered_ki
     builder = DiagramBuilder()
     identifiers = AddIdentifiers(builder, scenario)
     names = {identifiers.GetSystems()[i].get_name() for i in range(len(identifiers.GetSystems()))}
-    assert {"matched_raw_pose", "matched_raw_velocity", "matched_raw_acceleration"} <= names
+    assert {"matched_raw_pose_zoh", "matched_raw_velocity_zoh",
+            "matched_raw_acceleration_zoh"} <= names
     inner = {s.get_name(): s for s in identifiers.GetSystems()}
     robust = inner["identifier_rls_robust"]
-    for port, source in (("force", "force_raw"), ("tip_pose", "matched_raw_pose"),
-                         ("tip_velocity", "matched_raw_velocity"),
-                         ("tip_acceleration", "matched_raw_acceleration")):
+    for port, source in (("force", "force_raw"), ("tip_pose", "matched_raw_pose_zoh"),
+                         ("tip_velocity", "matched_raw_velocity_zoh"),
+                         ("tip_acceleration", "matched_raw_acceleration_zoh")):
         connected = _source_of(identifiers, robust.GetInputPort(port))
         assert connected == source, (port, connected)
 

@@ -112,3 +112,74 @@ def test_nominal_force_chain_of_the_matched_identifiers_has_the_chain_s_delay(ou
     # The step in the simulation lands between samples: compare up to half a sample.
     assert crossing(10.0) == pytest.approx(measured_delay, abs=0.6e-3)
     assert crossing(18.0) - crossing(2.0) == pytest.approx(measured_rise, abs=0.6e-3)
+
+
+def sine_response(frequency_hz, output):
+    """A 3 N sine at ``frequency_hz`` on 20 N through sensor + DSP (noise,
+    glitch and offset off): (sample times, ``output``)."""
+    from pydrake.systems.primitives import Adder, Sine
+    config = ForceSensorConfig(noise_std=[0.0, 0.0, 0.0], dac_glitch_n=0.0, offset_n=0.0)
+    builder = DiagramBuilder()
+    sensor = AddForceSensor(builder, config)
+    dsp = AddDspForceInput(builder, DspConfig(tare_window_s=0.05), config.fine_period, 12)
+    sine = builder.AddSystem(Sine(np.array([-3.0, 0.0, 0.0]),
+                                  np.full(3, 2 * np.pi * frequency_hz), np.zeros(3)))
+    level = builder.AddSystem(ConstantVectorSource(np.array([-20.0, 0.0, 0.0])))
+    wrench = builder.AddSystem(Adder(2, 3))
+    builder.Connect(sine.get_output_port(0), wrench.get_input_port(0))
+    builder.Connect(level.get_output_port(), wrench.get_input_port(1))
+    pose = builder.AddSystem(ConstantVectorSource(np.zeros(6)))
+    builder.Connect(wrench.get_output_port(), sensor.GetInputPort("wrench"))
+    builder.Connect(pose.get_output_port(), sensor.GetInputPort("tip_state"))
+    builder.Connect(sensor.GetOutputPort("voltage"), dsp.GetInputPort("voltage"))
+    logger = LogVectorOutput(dsp.GetOutputPort(output), builder, 1e-3)
+    simulator = Simulator(builder.Build())
+    simulator.AdvanceTo(3.0)
+    log = logger.FindLog(simulator.get_context())
+    return log.sample_times(), log.data()[0]
+
+
+def phase_delay(t, y, frequency_hz, start=1.0):
+    """The delay (s) of y's component at ``frequency_hz`` behind sin(w t)."""
+    w = 2 * np.pi * frequency_hz
+    keep = t >= start
+    design = np.column_stack([np.sin(w * t[keep]), np.cos(w * t[keep]), np.ones(keep.sum())])
+    (s, c, _), *_ = np.linalg.lstsq(design, y[keep], rcond=None)
+    return -np.arctan2(c, s) / w
+
+
+@pytest.mark.parametrize("output", ["force_filtered", "force_measured"])
+@pytest.mark.parametrize("frequency_hz", [1.7, 20.0])
+def test_zoh_chain_model_has_the_simulated_chain_s_delay(output, frequency_hz):
+    """chain_model zoh: the analog stages see the force held over each 1 ms
+    plant step, as the simulation does, so its delay at 1.7 and 20 Hz is
+    within 0.2 ms of the simulated chain's (what is left: the 480 Hz hold,
+    1.04 ms on average, taken as one sample, and its beat with the sine);
+    bilinear (Tustin) lags it by about half a sample more (0.5-0.65 ms)."""
+    from scipy import signal
+
+    from drake_contact.identification.identifiers import nominal_force_chain
+    t, y = sine_response(frequency_hz, output)
+    true = 20.0 + 3.0 * np.sin(2 * np.pi * frequency_hz * t)
+    simulated = phase_delay(t, y, frequency_hz)
+    dsp = DspConfig() if output == "force_filtered" else None
+    lags = {}
+    for model in ("bilinear", "zoh"):
+        b, a = nominal_force_chain(ForceSensorConfig(), dsp, discretization=model)
+        assert np.sum(b) / np.sum(a) == pytest.approx(1.0, rel=1e-9)
+        lags[model] = simulated - phase_delay(t, signal.lfilter(b, a, true), frequency_hz)
+    assert abs(lags["zoh"]) < 0.2e-3
+    assert 0.45e-3 < lags["bilinear"] < 0.7e-3
+
+
+def test_an_unknown_chain_model_is_refused_in_one_line(tmp_path):
+    """A scenario whose identifier names an unknown chain model fails to load
+    with one line naming the field and the choices."""
+    from drake_contact import ScenarioError, load_scenario
+    path = tmp_path / "bad_chain.yaml"
+    path.write_text("identifiers:\n  - {name: rls_zoh, kind: rls, signals: raw_matched,"
+                    " chain_model: foh}\n")
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(str(path))
+    assert str(info.value) == ("identifiers[0].chain_model = 'foh' is unknown: choose one of "
+                               "bilinear, zoh")

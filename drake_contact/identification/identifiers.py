@@ -63,6 +63,7 @@ from drake_contact.plugins import MakeIdentifier, installed_identifiers
 #: The built-in identifiers, configured by their own typed section.
 KINDS = ("rls", "nn")
 SIGNALS = ("filtered", "raw", "matched", "raw_matched")
+CHAIN_MODELS = ("bilinear", "zoh")
 _MEASURED_FIELDS = [field.name for field in dc.fields(MeasuredSignals)]
 
 
@@ -81,6 +82,12 @@ class IdentifierConfig:
     # raw_matched (the unfiltered force, the kinematics through the sensor's
     # nominal chain; ours, see the module doc).
     signals: str = "filtered"
+    # The nominal force chain of the matched and raw_matched signals:
+    # bilinear (its analog stages by Tustin's rule, for a force that varies
+    # between samples) or zoh (held over each 1 ms sample, as the simulated
+    # sensor holds the wall's force: exact in simulation; ours, issue 16).
+    # See nominal_force_chain.
+    chain_model: str = "bilinear"
     # Thesis figures it belongs to, e.g. ["6.1", "6.2"]: the first is the
     # six-panel figure of the first 4 s (identifiers naming the same one share
     # its axes), the second the whole run (RLS) or the network's output error
@@ -116,6 +123,9 @@ class IdentifierConfig:
         if self.signals not in SIGNALS:
             raise ScenarioError(f"{prefix}.signals = '{self.signals}' is unknown: choose one of "
                                 f"{', '.join(SIGNALS)}")
+        if self.chain_model not in CHAIN_MODELS:
+            raise ScenarioError(f"{prefix}.chain_model = '{self.chain_model}' is unknown: choose "
+                                f"one of {', '.join(CHAIN_MODELS)}")
         if self.kind in KINDS:
             getattr(self, self.kind).validate(f"{prefix}.{self.kind}")
         if len(self.figures) > 2 or not all(
@@ -133,32 +143,49 @@ def validate_identifiers(identifiers, prefix="identifiers"):
         names.add(config.name)
 
 
-def nominal_force_chain(sensor, dsp, period=CONTROL_PERIOD):
+def nominal_force_chain(sensor, dsp, period=CONTROL_PERIOD, discretization="bilinear"):
     """(b, a) at 1 kHz of the force chain's nominal linear model, from true
     force to ``force_filtered``: the sensor's analog Butterworth and its 2nd-
-    order output stage (bilinear), the 480 Hz hold as one sample of delay
-    (its mean delay, 1.04 ms), and the DSP's 2nd-order Butterworth (none with
+    order output stage, the 480 Hz hold as one sample of delay (its mean
+    delay, 1.04 ms), and the DSP's 2nd-order Butterworth (none with
     ``dsp=None``: to ``force_measured``). The identifiers' ``matched`` and
-    ``raw_matched`` signals use it; the noise-free step response of the full
-    chain is within a fraction of a sample of it."""
+    ``raw_matched`` signals use it.
+
+    ``discretization`` of the analog stages: ``bilinear`` (Tustin: for a
+    force that varies continuously between samples, as on hardware) or
+    ``zoh`` (exact for a force held over each sample, as the simulated
+    sensor holds the wall's force over each 1 ms frame of its fine ticks:
+    a staircase, whose mean delay is half a sample more). Against the simulated chain,
+    noise-free, at 1.7-20 Hz: ``bilinear`` lags it by 0.54-0.62 ms, ``zoh``
+    by 0.04-0.12 ms (tests/test_sensor_chain.py). A force that lags its
+    model by tau reads, in f = M_e a + B_e v + K_e x, as B_e - tau K_e: 0.6
+    ms is 90 N s/m at 150 kN/m."""
     num, den = signal.butter(sensor.analog_order, 2 * np.pi * sensor.analog_cutoff_hz,
                              analog=True)
     num_o, den_o = signal.butter(2, 2 * np.pi * sensor.output_bandwidth_hz, analog=True)
-    b, a = signal.bilinear(np.polymul(num, num_o), np.polymul(den, den_o), 1.0 / period)
+    num, den = np.polymul(num, num_o), np.polymul(den, den_o)
+    if discretization == "zoh":
+        b, a, _ = signal.cont2discrete((num, den), period, method="zoh")
+        b, a = np.ravel(b), np.ravel(a)
+    else:
+        b, a = signal.bilinear(num, den, 1.0 / period)
     hold_delay = max(1, int(round(0.5 / sensor.adc_rate_hz / period)))
     if dsp is None:
         return np.concatenate([np.zeros(hold_delay), b]), a
     b_dsp, a_dsp = butterworth_digital(dsp.force_filter_cutoff_hz, 1.0 / period)
-    return (np.concatenate([np.zeros(hold_delay), np.polymul(b, b_dsp)]),
-            np.polymul(a, a_dsp))
+    # np.convolve, not np.polymul: the latter drops the zoh numerator's
+    # leading zero, a sample of delay.
+    return (np.concatenate([np.zeros(hold_delay), np.convolve(b, b_dsp)]),
+            np.convolve(a, a_dsp))
 
 
-def _add_matched_signals(builder, scenario, inputs):
+def _add_matched_signals(builder, scenario, inputs, chain_model="bilinear"):
     """The ``matched`` versions of force, tip pose, velocity and acceleration:
     every one through the same overall filter (force chain x 35 Hz).
     ``inputs`` maps a measured signal's name to the list of inner input
     ports its exported input feeds; returns {signal name: filtered port}."""
-    b_chain, a_chain = nominal_force_chain(scenario.force_sensor, scenario.dsp)
+    b_chain, a_chain = nominal_force_chain(scenario.force_sensor, scenario.dsp,
+                                           discretization=chain_model)
     b_35, a_35 = butterworth_digital(scenario.estimator.cutoff_hz, 1.0 / CONTROL_PERIOD)
     filters = {
         "force": ("force", b_35, a_35, 1),
@@ -166,32 +193,35 @@ def _add_matched_signals(builder, scenario, inputs):
         "tip_velocity": ("velocity", b_chain, a_chain, 3),
         "tip_acceleration": ("acceleration", b_chain, a_chain, 3),
     }
-    return _add_filters(builder, filters, inputs)
+    return _add_filters(builder, filters, inputs, chain_model)
 
 
-def _add_raw_matched_signals(builder, scenario, inputs):
+def _add_raw_matched_signals(builder, scenario, inputs, chain_model="bilinear"):
     """The ``raw_matched`` signals: the unfiltered force as read, and the tip
     pose and its unfiltered differences through the sensor's nominal chain
     up to the DSP. Returns {identifier input name: port} like
     :func:`_add_matched_signals`."""
-    b_chain, a_chain = nominal_force_chain(scenario.force_sensor, None)
+    b_chain, a_chain = nominal_force_chain(scenario.force_sensor, None,
+                                           discretization=chain_model)
     filters = {
         "tip_pose": ("raw_pose", b_chain, a_chain, 3),
         "tip_velocity_raw": ("raw_velocity", b_chain, a_chain, 3),
         "tip_acceleration_raw": ("raw_acceleration", b_chain, a_chain, 3),
     }
-    out = _add_filters(builder, filters, inputs)
+    out = _add_filters(builder, filters, inputs, chain_model)
     return {"tip_pose": out["tip_pose"], "tip_velocity": out["tip_velocity_raw"],
             "tip_acceleration": out["tip_acceleration_raw"]}
 
 
-def _add_filters(builder, filters, inputs):
+def _add_filters(builder, filters, inputs, chain_model="bilinear"):
     """Adds one digital filter system per entry {source: (name, b, a,
     channels)}, fed by the measured signal ``source``; returns {source: its
-    output port}."""
+    output port}. The systems are named matched_<name> (and _zoh with that
+    chain model)."""
     out = {}
+    suffix = "" if chain_model == "bilinear" else f"_{chain_model}"
     for source, (name, b, a, channels) in filters.items():
-        system = builder.AddNamedSystem(f"matched_{name}",
+        system = builder.AddNamedSystem(f"matched_{name}{suffix}",
                                         digital_filter_system(b, a, CONTROL_PERIOD, channels))
         inputs[source].append(system.get_input_port())
         out[source] = system.get_output_port()
@@ -242,15 +272,17 @@ def AddIdentifiers(builder: DiagramBuilder, scenario, *, name="identifiers"):
     def build(builder):
         inputs = {field: [] for field in _MEASURED_FIELDS} | {"contact_info": []}
         outputs = {}
-        filtered = {}   # signals -> {input name: filtered port}, built once each
+        filtered = {}   # (signals, chain) -> {input name: filtered port}, built once each
         adders = {"matched": _add_matched_signals, "raw_matched": _add_raw_matched_signals}
         for index, config in enumerate(scenario.identifiers):
             system = MakeIdentifier(config.kind, config.factory_options(seed * 1000 + index),
                                     prefix=f"identifiers[{index}]")
             system = builder.AddNamedSystem(f"identifier_{config.name}", system)
-            if config.signals in adders and config.signals not in filtered:
-                filtered[config.signals] = adders[config.signals](builder, scenario, inputs)
-            own = filtered.get(config.signals, {})
+            key = (config.signals, config.chain_model)
+            if config.signals in adders and key not in filtered:
+                filtered[key] = adders[config.signals](builder, scenario, inputs,
+                                                       config.chain_model)
+            own = filtered.get(key, {})
             sources = _SOURCES[config.signals]
             for i in range(system.num_input_ports()):
                 port = system.get_input_port(i)
