@@ -4,7 +4,7 @@ spectral line in the noise (which must not widen a low-frequency bound)."""
 
 import numpy as np
 
-from drake_contact.app.identifiability import fisher_information, identifiability_bound
+from drake_contact.app.identifiability import fisher_information, identifiability_bound, noise_psd
 
 RATE = 1000.0
 SIGMA = 0.7
@@ -44,6 +44,8 @@ def test_white_noise_bound_is_the_time_domain_one():
     # The PSD is estimated from 7 s of rest: a few % of scatter.
     np.testing.assert_allclose(got, expected, rtol=0.1)
     assert bound["contact_samples"] == 12000
+    # The noise's PSD computed once and passed in (as the metrics do) gives the same bound.
+    assert identifiability_bound(log, 8.0, 1.0, psd=noise_psd(log, 1.0)) == bound
     assert abs(bound["relative"]["damping"] - expected[1] / B) < 0.1 * expected[1] / B
 
 

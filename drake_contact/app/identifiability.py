@@ -104,14 +104,17 @@ def fisher_information(regressors, freqs, psd):
     return np.real(spectrum.conj().T @ scaled)
 
 
-def identifiability_bound(log, t_contact, tare_window_s, until=None):
+def identifiability_bound(log, t_contact, tare_window_s, until=None, *, psd=None):
     """The Cramér-Rao bound of (M_e, B_e, K_e) from this run's contact
     samples (with ``until``, those before that long after the switch):
     ``{"std": {mass, damping, stiffness}, "relative": {...},
     "contact_samples": n}`` (one standard deviation; relative to the truth
     at the end, None where it is 0), or None if the run has no rest before
-    contact long enough for the noise's PSD, or too few samples in contact."""
-    psd = noise_psd(log, tare_window_s)
+    contact long enough for the noise's PSD, or too few samples in contact.
+    ``psd``: :func:`noise_psd`'s result for this log, if already computed
+    (several bounds of one run share it)."""
+    if psd is None:
+        psd = noise_psd(log, tare_window_s)
     window = contact_window(log, t_contact, until)
     if psd is None or window.sum() < MIN_CONTACT_SAMPLES:
         return None

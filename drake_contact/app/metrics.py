@@ -53,7 +53,7 @@ import copy
 
 import numpy as np
 
-from drake_contact.app.identifiability import identifiability_bound
+from drake_contact.app.identifiability import identifiability_bound, noise_psd
 from drake_contact.app.spectra import sensor_metrics
 from drake_contact.control.safety_supervisor import (
     CLAMPED, REFLEX, SAFETY_STATES, STOP_REASONS)
@@ -116,9 +116,11 @@ def compute_metrics(scenario: Scenario, log: dict, wall_s: float) -> dict:
     metrics.update(identification_metrics(log, scenario.identifiers))
     t_contact = _switch_time(log)
     if scenario.identifiers and t_contact is not None:
+        psd = noise_psd(log, scenario.dsp.tare_window_s)  # the rest's noise, once
         for key, until in (("identifiability_bound", None),
                            ("identifiability_bound_1s", EARLY_IDENTIFICATION_S)):
-            bound = identifiability_bound(log, t_contact, scenario.dsp.tare_window_s, until)
+            bound = identifiability_bound(log, t_contact, scenario.dsp.tare_window_s, until,
+                                          psd=psd)
             if bound is not None:
                 metrics[key] = bound
     metrics.update(fault_metrics(log, scenario))
