@@ -258,3 +258,70 @@ def test_self_scaling_identifier_meets_the_10_percent_bar_at_1_s_in_closed_loop(
     m = run(scenario, tmp_path, figures=False).metrics
     assert m["contact_time_s"] < 8.6                   # so the 1 s sample is in the run
     assert abs(m["identification_error_1s_nn_auto"]["stiffness"]) < 0.10
+
+
+def test_averaged_readout_is_the_weighted_least_squares_of_the_secants():
+    """Two samples by hand: sums decay by d and add step * rise and
+    step^2; the readout is their ratio, so a secant with a tiny step (the
+    first samples after the switch) hardly moves it."""
+    sums = np.zeros(6)
+    d = np.exp(-1e-3 / 0.5)
+    sums, first = ImpedanceNetwork.average_secants(
+        sums, np.array([0.2, 1.5, 1e-3]), np.array([1.0, 0.01, 1e-6]), d)
+    np.testing.assert_allclose(first, [0.2, 150.0, 1000.0], rtol=1e-15)   # one sample: its secants
+    sums, second = ImpedanceNetwork.average_secants(
+        sums, np.array([0.4, 1.0, 10.0]), np.array([1.0, 0.01, 1e-3]), d)
+    np.testing.assert_array_equal(
+        sums, [d * 0.2 + 0.4, d * 0.015 + 0.01, d * 1e-9 + 1e-2,
+               d + 1.0, d * 1e-4 + 1e-4, d * 1e-12 + 1e-6])
+    assert second[0] == pytest.approx((0.2 * d + 0.4) / (d + 1.0), rel=1e-15)
+    assert second[1] == pytest.approx((0.015 * d + 0.01) / (1e-4 * (d + 1.0)), rel=1e-15)
+    # K_e: the wild 1000 N/m secant at 1 um weighs 1e-6 of the 10 kN/m one at 1 mm.
+    assert second[2] == pytest.approx(1e4 * (1 + d * 1e-7) / (1 + d * 1e-6), rel=1e-12)
+    assert second[2] == pytest.approx(1e4, rel=1e-5)
+
+
+def test_running_system_averages_its_readout_over_samples():
+    """The system's update with readout_time_constant_s: the sums in the
+    state, the output their ratio; equal to the per-sample readout on the
+    first sample and to the hand-weighted mean of the two on the second."""
+    from drake_contact.identification.nn_identifier import NnIdentifier
+    config = NnIdentifierConfig(normalization="running", readout="operating_point",
+                                force_offset=True, learning_rate=0.05,
+                                readout_time_constant_s=0.5)
+    system = NnIdentifier(config, seed=4)
+    net = ImpedanceNetwork(config)
+    x = np.array([1e-3, 0.01, 0.5])
+    context = _fixed_context(system, 12.0, x)
+    x[0] = (0.4 + 1e-3) - 0.4
+    first = CalcSampledUpdate(system, context)
+    sums_index = first.num_groups() - 1
+    scales = first.get_vector(4).value()
+    weights = first.get_vector(0).value()
+    rises, steps = net.secants(weights, x, scales)
+    np.testing.assert_array_equal(first.get_vector(sums_index).value(),
+                                  np.concatenate([steps * rises, steps * steps]))
+    np.testing.assert_allclose(first.get_vector(1).value(),
+                               net.operating_point(weights, x, scales), rtol=1e-14)
+    context.SetDiscreteState(first)
+    second = CalcSampledUpdate(system, context)
+    rises2, steps2 = net.secants(second.get_vector(0).value(), x,
+                                 second.get_vector(4).value())
+    d = np.exp(-1e-3 / 0.5)
+    expected = ((d * steps * rises + steps2 * rises2) / (d * steps**2 + steps2**2))
+    np.testing.assert_allclose(second.get_vector(1).value(), expected, rtol=1e-14)
+
+
+@pytest.mark.parametrize("nn,message", [
+    ({"readout_time_constant_s": -1.0},
+     "identifiers[0].nn.readout_time_constant_s = -1.0 is out of range: must be in [0, 100] s"),
+    ({"normalization": "running", "readout": "jacobian", "readout_time_constant_s": 0.5},
+     "identifiers[0].nn.readout_time_constant_s = 0.5 needs identifiers[0].nn.readout = "
+     "'operating_point'"),
+])
+def test_bad_readout_time_constant_names_the_field_and_the_range(nn, message):
+    from drake_contact.errors import ScenarioError
+    from drake_contact.scenario import load_scenario
+    with pytest.raises(ScenarioError) as error:
+        load_scenario({"identifiers": [{"name": "auto", "kind": "nn", "nn": nn}]})
+    assert message in str(error.value)

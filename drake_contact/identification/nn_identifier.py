@@ -66,6 +66,21 @@ the level the network holds at rest, f_hat(xe) = f - f_s, so it is K_e up to
 the anchor's error: the force at the switch less the static force there,
 over f - f_s (the identifier's ``signals`` decide f_s; README, "nn_auto").
 
+With ``readout_time_constant_s`` tau, ``operating_point`` reports each
+coefficient as the exponentially weighted least-squares fit of its
+secants since the switch: for K_e, the slope through the origin of the
+network's rest force f_hat(x*_i, 0, 0) over the displacements x*_i visited,
+
+    K_e = sum_i d^(k-i) x*_i f_hat(x*_i, 0, 0) / sum_i d^(k-i) x*_i^2,   d = e^(-T/tau),
+
+and B_e, M_e likewise with the steps v*, a*. Each sample's secant
+rise / step weighs by step^2, the inverse of its variance when the rise
+carries a fixed error, so the first samples after the switch, whose
+displacement is microns and whose secants are wild, count for almost
+nothing; and the average takes out the readout's swing with a probing
+signal (the secant at the current displacement moves some 5 % with
+identify_any's 1.7 Hz probe). tau = 0 reads each sample's secants alone.
+
 The floors (1 um, 0.1 mm/s, 0.01 m/s^2, 0.1 N) only keep the first samples
 finite: each is below what any wall's 20 N transient reaches (xe is 0.1 mm at
 150 kN/m), so no scale rests on one.
@@ -117,6 +132,11 @@ class NnIdentifierConfig:
     # scales) or jacobian (partial derivatives at the current sample); the
     # last two need normalization: running.
     readout: str = "probe"
+    # Time constant (s) of the readout's averaging, operating_point only (0 =
+    # each sample's secants as they are): the exponentially weighted least
+    # squares over the samples since the switch, each secant weighted by its
+    # step squared (see the module doc).
+    readout_time_constant_s: float = 0.0
 
     def validate(self, prefix):
         if not (0 < self.learning_rate < 1):
@@ -140,6 +160,14 @@ class NnIdentifierConfig:
             raise ScenarioError(f"{prefix}.readout = '{self.readout}' needs "
                                 f"{prefix}.normalization = 'running' (the running scales "
                                 "are its steps)")
+        tau = self.readout_time_constant_s
+        if not (np.isfinite(tau) and 0 <= tau <= 100):
+            raise ScenarioError(f"{prefix}.readout_time_constant_s = {tau} is out of range: "
+                                "must be in [0, 100] s")
+        if tau > 0 and self.readout != "operating_point":
+            raise ScenarioError(f"{prefix}.readout_time_constant_s = {tau} needs "
+                                f"{prefix}.readout = 'operating_point' (it averages its "
+                                "secants)")
         if len(self.scale_floor) != 4 or not all(np.isfinite(x) and x > 0
                                                  for x in self.scale_floor):
             raise ScenarioError(f"{prefix}.scale_floor = {self.scale_floor} is out of range: "
@@ -309,6 +337,13 @@ class ImpedanceNetwork:
     def operating_point(self, weights, x, scales, probe=None):
         """(M_e, B_e, K_e) by the thesis's secants at x* = xe (at least its
         floor in magnitude), v* = s_v, a* = s_a; or at a given ``probe``."""
+        rises, steps = self.secants(weights, x, scales, probe)
+        return rises / steps
+
+    def secants(self, weights, x, scales, probe=None):
+        """The secants of :meth:`operating_point` as (rises, steps), each in
+        the order (M_e, B_e, K_e): rises (f_xva - f_xv, f_xv - f_x, f_x)
+        (N) over steps (a*, v*, x*)."""
         if probe is None:
             floor = self.c.scale_floor[0]
             xs = float(x[0]) if abs(x[0]) >= floor else (floor if x[0] >= 0 else -floor)
@@ -317,7 +352,17 @@ class ImpedanceNetwork:
             xs, vs, acc = probe
         f_x, f_xv, f_xva = (self.forward_scaled(weights, p, scales)[0]
                             for p in ([xs, 0.0, 0.0], [xs, vs, 0.0], [xs, vs, acc]))
-        return np.array([(f_xva - f_xv) / acc, (f_xv - f_x) / vs, f_x / xs])
+        return np.array([f_xva - f_xv, f_xv - f_x, f_x]), np.array([acc, vs, xs])
+
+    @staticmethod
+    def average_secants(sums, rises, steps, decay):
+        """The exponentially weighted least-squares readout: ``sums`` = [sum
+        of step * rise (3), sum of step^2 (3)] decayed by ``decay`` and
+        updated with this sample's secants; returns (new sums, (M_e, B_e,
+        K_e) = sum step * rise / sum step^2)."""
+        new = np.concatenate([decay * sums[:3] + steps * rises,
+                              decay * sums[3:] + steps * steps])
+        return new, new[:3] / new[3:]
 
     def initial_weights(self, seed):
         rng = np.random.default_rng(seed)
@@ -384,7 +429,9 @@ class NnIdentifier(LeafSystem):
       force_estimate (1): the network's force before each step (N; plus
       f_s with ``force_offset``).
     State: the weights (discrete), seeded; [started, f_s]; with
-      ``normalization: running`` also the scales (s_x, s_v, s_a, s_f).
+      ``normalization: running`` also the scales (s_x, s_v, s_a, s_f);
+      with ``readout_time_constant_s`` also the readout's weighted sums
+      [sum step * rise (3), sum step^2 (3)].
     """
 
     def __init__(self, config: NnIdentifierConfig, seed: int):
@@ -405,6 +452,11 @@ class NnIdentifier(LeafSystem):
             # The running scales (s_x, s_v, s_a, s_f), from their floors.
             self._scales = self.DeclareDiscreteState(np.asarray(config.scale_floor, dtype=float))
             self._i_scales = int(self._scales)
+        tau = config.readout_time_constant_s
+        self._readout_decay = float(np.exp(-CONTROL_PERIOD / tau)) if tau > 0 else None
+        if self._readout_decay is not None:
+            # The readout's weighted sums: [sum step * rise, sum step^2] (3 + 3).
+            self._i_sums = int(self.DeclareDiscreteState(6))
         # Plain ints index the groups (cheaper to pass to pydrake).
         self._i_weights, self._i_impedance, self._i_estimate, self._i_switch = (
             int(i) for i in (self._weights, self._impedance, self._estimate, self._switch))
@@ -441,6 +493,11 @@ class NnIdentifier(LeafSystem):
                                           x, f, scales)
         if net.c.readout == "jacobian":
             impedance = net.jacobian(weights, x, scales)
+        elif self._readout_decay is not None:
+            sums, impedance = net.average_secants(
+                context.get_discrete_state(self._i_sums).value(),
+                *net.secants(weights, x, scales), self._readout_decay)
+            state.get_mutable_value(self._i_sums)[:] = sums
         else:
             probe = net.c.probe if net.c.readout == "probe" else None
             impedance = net.operating_point(weights, x, scales, probe)
