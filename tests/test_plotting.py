@@ -227,3 +227,36 @@ def test_plot_signal_draws_a_long_line_as_its_envelope_only_when_asked(log):
     drawn = plot_signal(ax, long, "contact_force_true", max_points=2000)
     assert len(drawn.get_xdata()) <= 2000
     assert drawn.get_ydata().max() == long["contact_force_true"].max()
+
+
+def test_envelope_window_keeps_every_lines_envelope_from_a_start_index():
+    """The force-tracking figure's window of a long run: the union of each
+    line's (and column's) envelope picks from ``start`` on, time counted
+    from t0; a short window is the plain window."""
+    from drake_contact.app.plotting import _envelope_window, _window, min_max_envelope
+    n = 200_001
+    t = np.arange(n) * 1e-3
+    force = np.sin(t)
+    force[150_000] = 50.0                    # a spike in one line only
+    pose = np.column_stack([np.cos(t), np.sin(3 * t), np.cos(5 * t)])
+    pose[90_000, 2] = -4.0                   # and a dip in one column of another
+    log = {"t": t, "contact_force_true": force, "tip_pose_true": pose}
+    after = _envelope_window(log, 1000, t0=1.0, keys=("contact_force_true", "tip_pose_true",
+                                                      "missing"), max_points=2000)
+    assert set(after) == {"t", "contact_force_true", "tip_pose_true"}
+    assert after["t"][0] == 0.0 and np.all(np.diff(after["t"]) > 0)
+    assert len(after["t"]) <= 4 * 2000
+    assert 50.0 in after["contact_force_true"] and -4.0 in after["tip_pose_true"][:, 2]
+    # Every line's own envelope of the window is among the kept samples.
+    for y in (force[1000:], pose[1000:, 0], pose[1000:, 1], pose[1000:, 2]):
+        kept_t, _ = min_max_envelope(t[1000:] - 1.0, y, 2000)
+        assert np.all(np.isin(kept_t, after["t"]))
+    # The kept samples are the log's, at their own times.
+    index = np.round((after["t"] + 1.0) * 1e3).astype(int)
+    np.testing.assert_array_equal(after["tip_pose_true"], pose[index])
+    # Short: the plain window.
+    short = {key: value[:3000] for key, value in log.items()}
+    plain = _window(short, short["t"] >= 1.0, t0=1.0, keys=("contact_force_true",))
+    same = _envelope_window(short, 1000, t0=1.0, keys=("contact_force_true",))
+    for key in plain:
+        np.testing.assert_array_equal(same[key], plain[key])
