@@ -25,7 +25,7 @@ import numpy as np
 from pydrake.common import RandomGenerator
 from pydrake.systems.framework import Diagram, DiagramBuilder, PortDataType
 from pydrake.systems.primitives import (
-    Adder, ConstantVectorSource, MatrixGain, Multiplexer, RandomSource)
+    Adder, ConstantVectorSource, MatrixGain, Multiplexer, RandomSource, ZeroOrderHold)
 
 from drake_contact.control.force_reference import ForceReference
 from drake_contact.control.safety_supervisor import (
@@ -87,6 +87,30 @@ class ContactStation(Diagram):
         super().__init__()
         self.scenario = scenario
         self.signals = signals
+
+
+def LatchMeasuredSignals(builder, measured: MeasuredSignals, *, prefix="dsp_sample"):
+    """The DSP's sample of every measured signal, as the sampled systems
+    (controllers, supervisor, detector) read it: each port through a
+    ``ZeroOrderHold`` at 1 kHz, named ``<prefix>_<signal>``. Returns the
+    held ports as a MeasuredSignals.
+
+    Why: at an event time the plant steps in the unrestricted phase, with
+    the sampled systems, and the sensing's discrete systems (the estimator's
+    differences and filters, the DSP's filters) update after it, from the
+    state it reached. A sampled system that read a filter directly at the
+    next sample would see its state already advanced by the very input it
+    reads: a backward difference reads 0 (joints 1 and 2's velocities did,
+    until this latch) and a filter H reads z (H - D) + D. The hold stores
+    each filter's output as computed in its own update, so the sampled
+    systems read exactly the DSP's value for the arm's current state."""
+    held = {}
+    for name, port in measured.items():
+        hold = builder.AddNamedSystem(f"{prefix}_{name}",
+                                      ZeroOrderHold(CONTROL_PERIOD, port.size()))
+        builder.Connect(port, hold.get_input_port())
+        held[name] = hold.get_output_port()
+    return MeasuredSignals(**held)
 
 
 def _add_controller(builder, scenario, plant, measured: MeasuredSignals):
@@ -261,12 +285,15 @@ def MakeContactDiagram(scenario: Scenario) -> ContactStation:
         **{name: estimator.GetOutputPort(name) for name in (
             "tip_pose", "tip_velocity", "tip_acceleration", "joint_positions",
             "joint_velocities", "tip_velocity_raw", "tip_acceleration_raw")})
+    unlatched = measured
+    if scenario.simulation.sample_hold:
+        measured = LatchMeasuredSignals(builder, measured)
     controller_system, controller = _add_controller(builder, scenario, plant, measured)
     torque = controller["joint_torque_commanded"]
     identifiers = None
     if scenario.identifiers:
         identifiers = AddIdentifiers(builder, scenario)
-        for name, port in measured.items():
+        for name, port in unlatched.items():
             if identifiers.HasInputPort(name):
                 builder.Connect(port, identifiers.GetInputPort(name))
         builder.Connect(controller["contact_info"], identifiers.GetInputPort("contact_info"))

@@ -49,6 +49,7 @@ import dataclasses as dc
 import numpy as np
 from scipy import signal
 from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ZeroOrderHold
 
 from drake_contact.blocks import AddSubdiagram
 from drake_contact.errors import ScenarioError
@@ -272,6 +273,20 @@ def AddIdentifiers(builder: DiagramBuilder, scenario, *, name="identifiers"):
     def build(builder):
         inputs = {field: [] for field in _MEASURED_FIELDS} | {"contact_info": []}
         outputs = {}
+        # With simulation.sample_hold the identifiers (sampled systems) read
+        # each discrete signal through a 1 kHz hold (diagram.LatchMeasuredSignals).
+        hold = scenario.simulation.sample_hold
+        holds = {}  # source (a field name or a filter's port) -> its held output
+
+        def held(key, size, connect_input):
+            if key not in holds:
+                name = key if isinstance(key, str) else key.get_system().get_name()
+                zoh = builder.AddNamedSystem(f"sample_{name}",
+                                             ZeroOrderHold(CONTROL_PERIOD, size))
+                connect_input(zoh.get_input_port())
+                holds[key] = zoh.get_output_port()
+            return holds[key]
+
         filtered = {}   # (signals, chain) -> {input name: filtered port}, built once each
         adders = {"matched": _add_matched_signals, "raw_matched": _add_raw_matched_signals}
         for index, config in enumerate(scenario.identifiers):
@@ -287,12 +302,18 @@ def AddIdentifiers(builder: DiagramBuilder, scenario, *, name="identifiers"):
             for i in range(system.num_input_ports()):
                 port = system.get_input_port(i)
                 port_name = port.get_name()
-                if port_name in own:
+                field = sources.get(port_name, port_name)
+                if port_name in own and hold:
+                    source = own[port_name]
+                    builder.Connect(
+                        held(source, port.size(), lambda p, s=source: builder.Connect(s, p)),
+                        port)
+                elif port_name in own:
                     builder.Connect(own[port_name], port)
-                elif port_name in _SOURCES["filtered"]:
-                    inputs[sources[port_name]].append(port)
-                else:  # contact_info, or any other measured signal by its name
-                    inputs[port_name].append(port)
+                elif field in _MEASURED_FIELDS and hold:
+                    builder.Connect(held(field, port.size(), inputs[field].append), port)
+                else:  # contact_info (a sampled system's output), or a measured signal
+                    inputs[field].append(port)
             outputs[f"impedance_{config.name}"] = system.GetOutputPort("impedance")
             if system.HasOutputPort("force_estimate"):
                 outputs[f"force_estimate_{config.name}"] = system.GetOutputPort("force_estimate")
