@@ -296,6 +296,9 @@ def MakeContactDiagram(scenario: Scenario) -> ContactStation:
         for name, port in unlatched.items():
             if identifiers.HasInputPort(name):
                 builder.Connect(port, identifiers.GetInputPort(name))
+        for name, port in measured.items():  # the held signals (sample_hold)
+            if identifiers.HasInputPort(f"{name}_held"):
+                builder.Connect(port, identifiers.GetInputPort(f"{name}_held"))
         builder.Connect(controller["contact_info"], identifiers.GetInputPort("contact_info"))
     if controller_system.HasInputPort("impedance_estimate"):
         source = scenario.controller.impedance_source_name()
