@@ -271,3 +271,55 @@ def test_force_reference_probe_fields_are_validated(field, value):
     config = dc.replace(ForceReferenceConfig(), **{field: value})
     with pytest.raises(ScenarioError, match=f"force_reference.{field} = .* is out of range"):
         config.validate()
+
+
+def test_coupling_cancellation_leaves_y_and_phi_the_pose_loop_alone():
+    """By hand: with the controller's model, the joint torque commanded and
+    the measured wall force f give the task acceleration J M^-1 (tau - h -
+    J^T e_x f) + Jdot qdot. Its y and phi parts are the pose loop's u_x
+    exactly with the cancellation, and off by (Lambda^-1)[y/phi, x] (f_d - f)
+    without it."""
+    base = HybridControllerConfig(law="decoupled", friction_compensation=False)
+    full = dc.replace(base, force_coupling_cancellation=1.0)
+    half = dc.replace(base, force_coupling_cancellation=0.5)
+    force, f_d = 12.0, 20.0
+    results = {}
+    for name, config in (("off", base), ("full", full), ("half", half)):
+        tau, mode, q, qdot, x, xd = sample(config, force=force, f_d=f_d, k_e=25000.0)
+        assert mode == 1
+        J, jdq, M, h = expected_terms(q, qdot)
+        accel = J @ np.linalg.solve(M, tau - h - J.T @ np.array([force, 0, 0])) + jdq
+        results[name] = accel
+    u_x = 400.0 * (np.array([config.approach.start_x, 0, 0]) - x) - 80.0 * xd
+    coupling = (J @ np.linalg.solve(M, J.T))[1:, 0]
+    assert np.abs(coupling).min() > 0.05  # the arm couples x into y and phi here
+    np.testing.assert_allclose(results["full"][1:], u_x[1:], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(results["off"][1:], u_x[1:] + coupling * (f_d - force),
+                               rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(results["half"][1:], u_x[1:] + 0.5 * coupling * (f_d - force),
+                               rtol=1e-9, atol=1e-9)
+    # Along x nothing changes: the force loop is the decoupled law's.
+    np.testing.assert_allclose(results["full"][0], results["off"][0], rtol=1e-9, atol=1e-9)
+
+
+def test_stiffness_halving_time_limits_how_fast_k_e_falls_not_how_fast_it_rises():
+    """By hand: the switch sets k_used to the bounds' top (3e5 N/m); each
+    sample k_e = max(clip(estimate), k_used 0.5^(T / tau)). An estimate of
+    1 kN/m for 3 samples gives 3e5 0.5^0.3; then 2.9e5 (above the floor)
+    is used at once. Checked against the law fed those k_e directly."""
+    bounds = [1000.0, 300000.0]
+    limited = HybridControllerConfig(law="decoupled", stiffness_bounds=bounds,
+                                     stiffness_halving_time_s=0.01)
+    direct = dc.replace(limited, stiffness_halving_time_s=0.0)
+    controller = HybridController(limited)
+    context = controller.CreateDefaultContext()
+    context.SetTime(FIRST_SAMPLE_S)
+    for _ in range(3):
+        tau = sample(limited, force=12.0, k_e=1000.0, controller=controller, context=context)[0]
+    floor = 300000.0 * 0.5 ** 0.3
+    np.testing.assert_allclose(tau, sample(direct, force=12.0, k_e=floor, steps=3)[0],
+                               rtol=1e-12, atol=1e-12)
+    assert not np.allclose(tau, sample(direct, force=12.0, k_e=1000.0, steps=3)[0])
+    tau = sample(limited, force=12.0, k_e=290000.0, controller=controller, context=context)[0]
+    np.testing.assert_allclose(tau, sample(direct, force=12.0, k_e=290000.0, steps=4)[0],
+                               rtol=1e-12, atol=1e-12)

@@ -61,6 +61,10 @@ def test_bad_overrides_name_the_field(override, message):
      "controller.hybrid.pose_integral_gain = -1.0 is out of range: must be >= 0"),
     ("controller.hybrid.decoupled_force_integral_gain=-0.1",
      "controller.hybrid.decoupled_force_integral_gain = -0.1 is out of range: must be >= 0"),
+    ("controller.hybrid.stiffness_halving_time_s=-0.01",
+     "controller.hybrid.stiffness_halving_time_s = -0.01 is out of range: must be >= 0"),
+    ("controller.hybrid.force_coupling_cancellation=1.5",
+     "controller.hybrid.force_coupling_cancellation = 1.5 is out of range: must be in [0, 1]"),
 ])
 def test_bad_adaptive_hybrid_fields_name_the_field(override, message):
     with pytest.raises(ScenarioError) as info:

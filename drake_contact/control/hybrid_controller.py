@@ -40,14 +40,41 @@ controller), k_e is its estimate clipped to ``stiffness_bounds``: from the
 first millisecond of contact, before the estimate has converged, the force
 loop's gain is K_e / k_e times its design value, so an estimate above the
 truth only slows the loop; the upper bound (with an identifier that starts
-there) is the safe prior. The arm's own mass is small (about 0.1-0.5 kg
-at the tip), so the acceleration-level force loop commands little torque
+there) is the safe prior. An estimate can swing below the truth in the
+first milliseconds of contact, though (even below zero: then k_e sits at the
+lower bound, and the loop's gain is K_e / k_e times its design); with
+``stiffness_halving_time_s`` tau the law follows a rise of the estimate at
+once and a fall by at most half per tau, k_e = max(clip(k_hat), k_(e,prev)
+0.5^(T / tau)), from the bounds' top at each switch to contact, so such a
+swing cannot raise the loop's gain by more than 2^(t / tau) in t (the
+asymmetry follows the one above: a high k_e only slows the loop).
+
+The arm's own mass is small (about 0.1-0.5 kg at the tip), so the
+acceleration-level force loop commands little torque
 against the joints' stiction (1 N m at joint 1, some 2 N at the tip): the
 force then sits a few N off f_d. The option ``decoupled_force_integral_gain``
 adds the hybrid law's integral of the force error to the force command,
 J^T S (f_d + K_fdi sum_k (f_d - f)); at low frequency the tip passes the
 commanded force to the wall whatever its stiffness, so this loop's gain
 (K_fdi per ms, a time constant T / K_fdi) does not depend on K_e.
+
+Option (ours) for the decoupled law: cancel the force imbalance's coupling
+into y and phi (Khatib 1987, "A unified approach for motion and force
+control of robot manipulators: the operational space formulation", IEEE J.
+Robotics and Automation 3(1)). The feed-forward J^T S f_d accelerates the
+tip by Lambda^-1 e_x (f_d - f_wall), Lambda^-1 = J M^-1 J^T: along x, as it
+must to move the wall, but also along y and phi through the arm's inertia,
+for as long as the wall's force lags a step of f_d (on a 3 kN/m wall the
+tip travels 3.3 mm per 10 N step). With ``force_coupling_cancellation`` c
+the law subtracts that part, measured with the DSP's force f:
+
+    u_x[y, phi] -= c (Lambda^-1)[y/phi, x] (f_d - f)
+
+With the model right, x's dynamics are unchanged and y and phi see only
+(f - f_wall), the force filter's lag. The integral's share of the force
+command (what the joints' stiction and the model's errors take up in the
+steady state) is not cancelled: cancelling it fed a steady push into y and
+phi, and the force hunted +-0.6 N with a 2.4 s period (15 kN/m, measured).
 
 Option (ours, not the thesis's) for the position-controlled directions in
 contact: integral action on y and phi,
@@ -151,10 +178,17 @@ class HybridControllerConfig:
     # [lowest, highest] k_e (N/m) the decoupled law uses; an identifier's
     # estimate is clipped to them.
     stiffness_bounds: list[float] = dc.field(default_factory=lambda: [1.0, 1.0e12])
+    # The k_e the decoupled law uses follows a rise of the estimate at once
+    # and a fall by at most half per this time (s; 0 = at once). It starts
+    # at the bounds' top at each switch to contact. See the module doc.
+    stiffness_halving_time_s: float = 0.0
     # Integral gain K_pi on y and phi in contact (1/s^3; 0 = the thesis's PD)
     # and the bound on the integral's acceleration (m/s^2 and rad/s^2).
     pose_integral_gain: float = 0.0
     pose_integral_limit: float = 20.0
+    # Decoupled law: the fraction (0-1; 0 = 4.19-4.21) of the force
+    # imbalance's coupling into y and phi cancelled (see the module doc).
+    force_coupling_cancellation: float = 0.0
     # Compensate dry friction with the model's F_c (4.10, 4.13, 4.19).
     friction_compensation: bool = True
     # Switch to contact above this filtered force (N), back below the other.
@@ -173,10 +207,15 @@ class HybridControllerConfig:
         for field in ("position_gain", "velocity_gain", "force_gain", "force_integral_gain",
                       "contact_damping_x", "contact_force_rate_damping", "decoupled_force_gain",
                       "decoupled_force_damping", "decoupled_force_integral_gain",
-                      "force_integral_band_n", "pose_integral_gain", "pose_integral_limit"):
+                      "force_integral_band_n", "pose_integral_gain", "pose_integral_limit",
+                      "stiffness_halving_time_s"):
             value = getattr(self, field)
             if not (np.isfinite(value) and value >= 0):
                 raise ScenarioError(f"{prefix}.{field} = {value} is out of range: must be >= 0")
+        if not (0.0 <= self.force_coupling_cancellation <= 1.0):
+            raise ScenarioError(f"{prefix}.force_coupling_cancellation = "
+                                f"{self.force_coupling_cancellation} is out of range: "
+                                "must be in [0, 1]")
         if not (abs(self.y_desired) <= 0.1):
             raise ScenarioError(f"{prefix}.y_desired = {self.y_desired} is out of range: "
                                 "must be in [-0.1, 0.1] m")
@@ -200,10 +239,11 @@ class HybridControllerConfig:
 
 #: Layout of the law's output vector: the exported signals, then the
 #: internal state [approach timer (s), x_d (m), sum of force errors (N),
-#: sums of the y and phi errors (m, rad), the force at this sample (N)].
+#: sums of the y and phi errors (m, rad), the force at this sample (N), the k_e
+#: the decoupled law used (N/m)].
 _TAU, _MODE, _INFO, _JACOBIAN, _INTERNAL = (slice(0, 3), slice(3, 4), slice(4, 8),
-                                           slice(8, 17), slice(17, 23))
-_LAW_SIZE = 23
+                                           slice(8, 17), slice(17, 24))
+_LAW_SIZE = 24
 
 
 def read_measured_state(context, pose, velocity, joint_positions, joint_velocities):
@@ -242,7 +282,8 @@ class HybridControlLaw(LeafSystem):
         self._stiffness = self.DeclareVectorInputPort("stiffness_estimate", 1)
         held = np.zeros(_LAW_SIZE)
         held[_INFO] = [-1.0, 0.0, 0.0, 0.0]
-        held[_INTERNAL] = [0.0, config.approach.start_x, 0.0, 0.0, 0.0, 0.0]
+        held[_INTERNAL] = [0.0, config.approach.start_x, 0.0, 0.0, 0.0, 0.0,
+                           config.stiffness_bounds[1]]
         self._held = self.DeclareDiscreteState(held)
         self._control = self.DeclareVectorOutputPort(
             "control", _LAW_SIZE, self._calc_control,
@@ -273,10 +314,11 @@ class HybridControlLaw(LeafSystem):
         f = self._force.Eval(context)[0]
         mode = held[3]
         info = held[_INFO].tolist()
-        timer, x_d, error_sum, y_sum, phi_sum, f_previous = held[_INTERNAL].tolist()
+        timer, x_d, error_sum, y_sum, phi_sum, f_previous, k_used = held[_INTERNAL].tolist()
 
         if mode == APPROACH and f > c.contact_threshold_n:
             mode, error_sum, y_sum, phi_sum = CONTACT, 0.0, 0.0, 0.0
+            k_used = c.stiffness_bounds[1]
             if info[0] < 0:
                 info[0] = t
             info[1:] = x
@@ -318,17 +360,27 @@ class HybridControlLaw(LeafSystem):
             else:
                 low, high = c.stiffness_bounds
                 k_e = min(max(self._stiffness.Eval(context)[0], low), high)
+                if c.stiffness_halving_time_s:
+                    k_e = max(k_e, k_used * 0.5 ** (CONTROL_PERIOD / c.stiffness_halving_time_s))
+                k_used = k_e
                 accel[0] = (c.decoupled_force_gain * error
                             - c.decoupled_force_damping * k_e * xd[0]) / k_e
                 force_x = f_d
                 if c.decoupled_force_integral_gain:
                     force_x += c.decoupled_force_integral_gain * error_sum
+                if c.force_coupling_cancellation:
+                    # Lambda^-1 e_x = J M^-1 J^T e_x: the task acceleration a unit
+                    # force along x gives; cancel its y, phi part for f_d - f.
+                    v = solve3(M, [J[0][0], J[0][1], J[0][2]])
+                    imbalance = c.force_coupling_cancellation * error
+                    for i in (1, 2):
+                        accel[i] -= (J[i][0] * v[0] + J[i][1] * v[1] + J[i][2] * v[2]) * imbalance
         qddot = solve3(J, [a - b for a, b in zip(accel, jdot_qdot)])
         tau = [tau[i] + M[i][0] * qddot[0] + M[i][1] * qddot[1] + M[i][2] * qddot[2]
                + J[0][i] * force_x for i in range(3)]
 
         output.SetFromVector(self._model.command(tau) + [mode] + info + J[0] + J[1] + J[2]
-                             + [timer, x_d, error_sum, y_sum, phi_sum, f])
+                             + [timer, x_d, error_sum, y_sum, phi_sum, f, k_used])
 
 
 class HybridController(Diagram):
@@ -354,7 +406,7 @@ class HybridController(Diagram):
         super().__init__()
         builder = DiagramBuilder()
         law = builder.AddNamedSystem("law", HybridControlLaw(config))
-        split = builder.AddNamedSystem("outputs", Demultiplexer([3, 1, 4, 9, 6]))
+        split = builder.AddNamedSystem("outputs", Demultiplexer([3, 1, 4, 9, 7]))
         builder.Connect(law.get_output_port(), split.get_input_port())
         for port in range(law.num_input_ports()):
             builder.ExportInput(law.get_input_port(port), law.get_input_port(port).get_name())
