@@ -323,3 +323,106 @@ def test_stiffness_halving_time_limits_how_fast_k_e_falls_not_how_fast_it_rises(
     tau = sample(limited, force=12.0, k_e=290000.0, controller=controller, context=context)[0]
     np.testing.assert_allclose(tau, sample(direct, force=12.0, k_e=290000.0, steps=4)[0],
                                rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("law", ["hybrid", "decoupled"])
+def test_pose_joint_stiffness_adds_k_times_the_pose_error_mapped_to_the_joints(law):
+    """By hand: in contact the law adds K (J^-1 (I - S) (x_d - x)) - D (J^-1
+    (I - S) xdot) per joint (elementwise); in the approach it adds nothing."""
+    stiffness, damping = [30.0, 5.0, 8.0], [0.5, 0.2, 0.05]
+    config = HybridControllerConfig(law=law, pose_joint_stiffness=stiffness,
+                                    pose_joint_damping=damping, y_desired=0.001,
+                                    phi_desired=-0.002)
+    plain = dc.replace(config, pose_joint_stiffness=[0.0] * 3, pose_joint_damping=[0.0] * 3)
+    tau, mode, q, qdot, x, xd = sample(config, force=12.0, k_e=25000.0)
+    assert mode == 1
+    J = thesis.jacobian(q)
+    e_q = np.linalg.solve(J, [0.0, 0.001 - x[1], -0.002 - x[2]])
+    v_q = np.linalg.solve(J, [0.0, xd[1], xd[2]])
+    added = np.array(stiffness) * e_q - np.array(damping) * v_q
+    # A (y, phi) error here moves joints 1 and 3 (joint 2 barely: J^-1's row).
+    assert np.abs(added[[0, 2]]).min() > 1e-3
+    expected = sample(plain, force=12.0, k_e=25000.0)[0] + added
+    np.testing.assert_allclose(tau, expected, rtol=1e-9, atol=1e-9)
+    approach = sample(config, force=1.0)
+    assert approach[1] == 0
+    np.testing.assert_array_equal(approach[0], sample(plain, force=1.0)[0])
+
+
+def test_pose_joint_stiffness_fields_are_validated():
+    for field in ("pose_joint_stiffness", "pose_joint_damping"):
+        for value in ([1.0, 2.0], [0.0, -1.0, 0.0], [0.0, 0.0, float("nan")]):
+            config = HybridControllerConfig(**{field: value})
+            with pytest.raises(ScenarioError,
+                               match=f"controller.hybrid.{field} = .* is out of range"):
+                config.validate()
+    with pytest.raises(ScenarioError, match="force_integral_hold_s = -0.1 is out of range"):
+        HybridControllerConfig(force_integral_hold_s=-0.1).validate()
+
+
+def test_force_integral_hold_skips_the_samples_after_the_switch_and_each_step_of_f_d():
+    """By hand, the hybrid PI law with K_fi 0.003 and a 2 ms hold, the force
+    read 12 N: the switch (f_d from none to 20 N) holds the sum for samples 1
+    and 2, samples 3-5 sum 8 N each; f_d stepping to 10 N at sample 6 holds
+    it for samples 6 and 7, sample 8 sums -2 N. f_d - f is summed as the
+    law's own (I - S) part and feed-forward are unchanged: checked against
+    the same law with the sum it should hold, u_f = K_fp e + K_fi sum."""
+    config = HybridControllerConfig(force_gain=1.0, force_integral_gain=0.003,
+                                    force_integral_hold_s=0.002)
+    controller = HybridController(config)
+    context = controller.CreateDefaultContext()
+    expected_sums = [0, 0, 8, 16, 24, 24, 24, 22]
+    for k, expected_sum in enumerate(expected_sums):
+        f_d = 20.0 if k < 5 else 10.0
+        context.SetTime(FIRST_SAMPLE_S + k * 1e-3)
+        tau, mode, q, qdot, x, xd = sample(config, force=12.0, f_d=f_d, controller=controller,
+                                           context=context)
+        assert mode == 1
+        J, jdq, M, h = expected_terms(q, qdot)
+        u_x = 400.0 * (np.array([config.approach.start_x, 0, 0]) - x) - 80.0 * xd
+        u_f = (f_d - 12.0) + 0.003 * expected_sum
+        expected = (M @ np.linalg.solve(J, (np.eye(3) - S) @ u_x - jdq) + h
+                    + friction(config, qdot) + J.T @ S @ np.array([f_d + u_f, 0, 0]))
+        np.testing.assert_allclose(tau, expected, rtol=1e-9, atol=1e-9, err_msg=f"sample {k + 1}")
+    # Without the hold every sample sums (the thesis's law).
+    plain = dc.replace(config, force_integral_hold_s=0.0)
+    tau = sample(plain, force=12.0, steps=3)[0]
+    J, jdq, M, h = expected_terms(q, qdot)
+    u_f = 8.0 + 0.003 * 24.0
+    expected = (M @ np.linalg.solve(J, (np.eye(3) - S) @ u_x - jdq) + h
+                + friction(config, qdot) + J.T @ S @ np.array([20.0 + u_f, 0, 0]))
+    np.testing.assert_allclose(tau, expected, rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("force, steps", [(19.9, 1), (19.9, 3), (20.3, 2), (12.0, 2)])
+def test_force_error_friction_compensation_follows_the_filtered_force_error(force, steps):
+    """By hand: the force error e = 20 - f through a first-order low-pass at
+    10 Hz (gain g = 1 - exp(-2 pi 10 T) per sample, from 0 at the switch)
+    gives e_f = e (1 - (1 - g)^n) after n samples; the law adds c sat(e_f /
+    e_0) F_c sgn(J^-1 e_x) per joint, F_c the model's Coulomb levels: small
+    errors in proportion, large ones (12 N: 8 N off) the full c F_c."""
+    config = HybridControllerConfig(friction_compensation=False,
+                                    force_error_friction_compensation=0.6,
+                                    force_error_friction_band_n=0.25, force_error_filter_hz=10.0)
+    plain = dc.replace(config, force_error_friction_compensation=0.0)
+    tau, mode, q, qdot, x, xd = sample(config, force=force, steps=steps)
+    assert mode == 1
+    g = 1.0 - np.exp(-2.0 * np.pi * 10.0 * 1e-3)
+    e_f = (20.0 - force) * (1.0 - (1.0 - g) ** steps)
+    push = np.linalg.solve(thesis.jacobian(q), [1.0, 0.0, 0.0])
+    added = 0.6 * np.clip(e_f / 0.25, -1.0, 1.0) * np.array([1.0, 0.2, 0.004]) * np.sign(push)
+    np.testing.assert_allclose(tau, sample(plain, force=force, steps=steps)[0] + added,
+                               rtol=1e-9, atol=1e-12)
+    assert np.abs(added[0]) > 1e-3
+    # In the approach it adds nothing.
+    np.testing.assert_array_equal(sample(config, force=1.0)[0], sample(plain, force=1.0)[0])
+
+
+@pytest.mark.parametrize("field, value", [("force_error_friction_compensation", 1.5),
+                                          ("force_error_friction_compensation", -0.1),
+                                          ("force_error_friction_band_n", 0.0),
+                                          ("force_error_filter_hz", 0.0),
+                                          ("force_error_filter_hz", 500.0)])
+def test_force_error_friction_compensation_fields_are_validated(field, value):
+    with pytest.raises(ScenarioError, match=f"controller.hybrid.{field} = .* is out of range"):
+        HybridControllerConfig(**{field: value}).validate()

@@ -65,6 +65,14 @@ def test_bad_overrides_name_the_field(override, message):
      "controller.hybrid.stiffness_halving_time_s = -0.01 is out of range: must be >= 0"),
     ("controller.hybrid.force_coupling_cancellation=1.5",
      "controller.hybrid.force_coupling_cancellation = 1.5 is out of range: must be in [0, 1]"),
+    ("controller.hybrid.pose_joint_stiffness=[0, 0, -8]",
+     "controller.hybrid.pose_joint_stiffness = [0.0, 0.0, -8.0] is out of range: must be 3 "
+     "values >= 0 N m/rad"),
+    ("controller.hybrid.force_error_friction_compensation=2",
+     "controller.hybrid.force_error_friction_compensation = 2.0 is out of range: must be in "
+     "[0, 1]"),
+    ("controller.hybrid.force_integral_hold_s=-0.2",
+     "controller.hybrid.force_integral_hold_s = -0.2 is out of range: must be >= 0"),
 ])
 def test_bad_adaptive_hybrid_fields_name_the_field(override, message):
     with pytest.raises(ScenarioError) as info:

@@ -88,6 +88,52 @@ leaves the offset the stiction holds; the integral builds the torque that
 breaks it (classical PID with clamping anti-windup, e.g. Astrom & Hagglund,
 "PID Controllers", 1995, section 3.5).
 
+Option (ours) for the force integral: hold it for ``force_integral_hold_s``
+after each step of f_d (a change of more than ``force_step_threshold_n``
+between two samples) and after each switch to contact. The proportional
+loop makes a step's transient; summed during it (conditional integration
+lets in the part of the step within ``force_integral_band_n``), the
+integral winds up by the transient's area and the joints stick past the
+new level. Freezing the integrator through a set-point change is the
+conditional integration of Astrom & Hagglund ("PID Controllers", 1995,
+section 3.5) keyed to the reference instead of the error.
+
+Option (ours) for the joints' static friction in contact: compensate it in
+the direction the force error asks the joints to turn,
+
+    tau += c sat(e_f / e_0) F_c sgn(J^-1 e_x)        (elementwise)
+
+with c ``force_error_friction_compensation`` (0-1), F_c the model's
+Coulomb levels, J^-1 e_x the joints' motion that moves the tip along +x with
+y and phi held, e_0 ``force_error_friction_band_n`` and e_f the force error
+f_d - f through a first-order low-pass at ``force_error_filter_hz``. The
+thesis's compensation F_c sgn(qdot) needs the joint to move; a stuck joint
+has no velocity, and joint 2's stiction alone (0.2 N m through dx/dq2 =
+-0.11 m) holds some 1.85 N at the tip, which the integral otherwise has to
+build up after every reversal. Compensating Coulomb friction by the sign of
+the servo error rather than of the velocity is the nonlinear compensator of
+Southward, Radcliffe & MacCluer (1991, "Robust nonlinear stick-slip
+friction compensation", ASME J. Dyn. Sys., Meas., Control 113(4)); c < 1
+leaves a margin against over-compensation (a limit cycle), and e_0 sits
+at about the low-passed force noise so the term is linear within it.
+
+Option (ours) for the position-controlled directions in contact: a joint
+stiffness and damping on their error,
+
+    tau += K_q J^-1 (I - S) (x_d - x) - D_q J^-1 (I - S) xdot   (elementwise)
+
+(``pose_joint_stiffness`` K_q, ``pose_joint_damping`` D_q, per joint). The
+resolved-acceleration PD holds each joint with a stiffness weighted by the
+arm's inertia, M J^-1 K_pp J: joint 3 (2.9e-3 kg m^2) by only 1.2 N m/rad,
+less than the wall's push on link 3, a negative stiffness a3 f (3 N m/rad at
+20 N) that the feed-forward J^T f_d cancels only to joint 3's encoder count
+(3.1 mrad); within a count phi drifted by up to 6.6 mrad. Raising K_pp for
+phi instead stiffens joints 1-2 through M J^-1 and feeds them the coarse
+count's noise (measured: a 50 Hz oscillation of joint 1). A joint-space
+stiffness on joint 3 alone is the active stiffness control of Salisbury
+(1980, "Active stiffness control of a manipulator in Cartesian
+coordinates", IEEE CDC) restricted to the joint that needs it.
+
 Sampled at each whole millisecond, in the same event as the plant step its
 torque acts over (see arm.py, ``is_sample_time``). Reads measured signals only: the estimator's tip pose, velocity, joint
 angles and velocities, and the DSP's filtered force. M, h, J, Jdot qdot and
@@ -189,6 +235,27 @@ class HybridControllerConfig:
     # Decoupled law: the fraction (0-1; 0 = 4.19-4.21) of the force
     # imbalance's coupling into y and phi cancelled (see the module doc).
     force_coupling_cancellation: float = 0.0
+    # Hold the force integral for this long (s; 0 = never) after each step
+    # of f_d larger than force_step_threshold_n (N) between two samples, and
+    # after each switch to contact: the proportional loop makes the step's
+    # transient, the integral only what stiction leaves (see the module doc).
+    force_integral_hold_s: float = 0.0
+    force_step_threshold_n: float = 1.0
+    # Joint stiffness (N m/rad) and damping (N m s/rad), joints 1-3, on the
+    # pose error of the position-controlled directions mapped to the joints,
+    # J^-1 (I - S) (x_d - x), in contact (zeros = the thesis's law; see the
+    # module doc).
+    # Static-friction compensation driven by the force error (ours; 0 = off):
+    # in contact each joint gets this fraction (0-1) of the model's Coulomb
+    # level F_c, in the direction it turns to push the tip along +x
+    # (sign of J^-1 e_x), scaled by sat(e_f / band), e_f the force error
+    # f_d - f through a first-order low-pass at force_error_filter_hz (Hz).
+    # See the module doc.
+    force_error_friction_compensation: float = 0.0
+    force_error_friction_band_n: float = 0.25
+    force_error_filter_hz: float = 10.0
+    pose_joint_stiffness: list[float] = dc.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    pose_joint_damping: list[float] = dc.field(default_factory=lambda: [0.0, 0.0, 0.0])
     # Compensate dry friction with the model's F_c (4.10, 4.13, 4.19).
     friction_compensation: bool = True
     # Switch to contact above this filtered force (N), back below the other.
@@ -208,10 +275,30 @@ class HybridControllerConfig:
                       "contact_damping_x", "contact_force_rate_damping", "decoupled_force_gain",
                       "decoupled_force_damping", "decoupled_force_integral_gain",
                       "force_integral_band_n", "pose_integral_gain", "pose_integral_limit",
-                      "stiffness_halving_time_s"):
+                      "stiffness_halving_time_s", "force_integral_hold_s",
+                      "force_step_threshold_n"):
             value = getattr(self, field)
             if not (np.isfinite(value) and value >= 0):
                 raise ScenarioError(f"{prefix}.{field} = {value} is out of range: must be >= 0")
+        for field, unit in (("pose_joint_stiffness", "N m/rad"),
+                            ("pose_joint_damping", "N m s/rad")):
+            value = getattr(self, field)
+            if len(value) != 3 or not all(np.isfinite(v) and v >= 0 for v in value):
+                raise ScenarioError(f"{prefix}.{field} = {value} is out of range: must be 3 "
+                                    f"values >= 0 {unit}")
+        if not (0.0 <= self.force_error_friction_compensation <= 1.0):
+            raise ScenarioError(f"{prefix}.force_error_friction_compensation = "
+                                f"{self.force_error_friction_compensation} is out of range: "
+                                "must be in [0, 1]")
+        for field, unit in (("force_error_friction_band_n", "N"),
+                            ("force_error_filter_hz", "Hz")):
+            if not (np.isfinite(getattr(self, field)) and getattr(self, field) > 0):
+                raise ScenarioError(f"{prefix}.{field} = {getattr(self, field)} is out of "
+                                    f"range: must be > 0 {unit}")
+        if not (self.force_error_filter_hz < 500.0):
+            raise ScenarioError(f"{prefix}.force_error_filter_hz = {self.force_error_filter_hz} "
+                                "is out of range: must be below 500 Hz (the 1 kHz sample's "
+                                "Nyquist rate)")
         if not (0.0 <= self.force_coupling_cancellation <= 1.0):
             raise ScenarioError(f"{prefix}.force_coupling_cancellation = "
                                 f"{self.force_coupling_cancellation} is out of range: "
@@ -240,10 +327,11 @@ class HybridControllerConfig:
 #: Layout of the law's output vector: the exported signals, then the
 #: internal state [approach timer (s), x_d (m), sum of force errors (N),
 #: sums of the y and phi errors (m, rad), the force at this sample (N), the k_e
-#: the decoupled law used (N/m)].
+#: the decoupled law used (N/m), f_d at this sample (N), the time until which
+#: the force integral is held (s), the low-passed force error (N)].
 _TAU, _MODE, _INFO, _JACOBIAN, _INTERNAL = (slice(0, 3), slice(3, 4), slice(4, 8),
-                                           slice(8, 17), slice(17, 24))
-_LAW_SIZE = 24
+                                           slice(8, 17), slice(17, 27))
+_LAW_SIZE = 27
 
 
 def read_measured_state(context, pose, velocity, joint_positions, joint_velocities):
@@ -273,6 +361,10 @@ class HybridControlLaw(LeafSystem):
         config.validate()
         self._config = config
         self._model = ArmModel(config.model)
+        self._joint_impedance = any(config.pose_joint_stiffness) or any(config.pose_joint_damping)
+        # First-order low-pass of the force error, exact for a held input.
+        self._error_filter_gain = 1.0 - math.exp(-2.0 * math.pi * config.force_error_filter_hz
+                                                 * CONTROL_PERIOD)
         self._pose = self.DeclareVectorInputPort("tip_pose", 3)
         self._velocity = self.DeclareVectorInputPort("tip_velocity", 3)
         self._q = self.DeclareVectorInputPort("joint_positions", 3)
@@ -283,7 +375,7 @@ class HybridControlLaw(LeafSystem):
         held = np.zeros(_LAW_SIZE)
         held[_INFO] = [-1.0, 0.0, 0.0, 0.0]
         held[_INTERNAL] = [0.0, config.approach.start_x, 0.0, 0.0, 0.0, 0.0,
-                           config.stiffness_bounds[1]]
+                           config.stiffness_bounds[1], 0.0, 0.0, 0.0]
         self._held = self.DeclareDiscreteState(held)
         self._control = self.DeclareVectorOutputPort(
             "control", _LAW_SIZE, self._calc_control,
@@ -314,10 +406,11 @@ class HybridControlLaw(LeafSystem):
         f = self._force.Eval(context)[0]
         mode = held[3]
         info = held[_INFO].tolist()
-        timer, x_d, error_sum, y_sum, phi_sum, f_previous, k_used = held[_INTERNAL].tolist()
+        (timer, x_d, error_sum, y_sum, phi_sum, f_previous, k_used, fd_previous,
+         hold_until, error_lp) = held[_INTERNAL].tolist()
 
         if mode == APPROACH and f > c.contact_threshold_n:
-            mode, error_sum, y_sum, phi_sum = CONTACT, 0.0, 0.0, 0.0
+            mode, error_sum, y_sum, phi_sum, error_lp = CONTACT, 0.0, 0.0, 0.0, 0.0
             k_used = c.stiffness_bounds[1]
             if info[0] < 0:
                 info[0] = t
@@ -341,7 +434,11 @@ class HybridControlLaw(LeafSystem):
         else:
             f_d = self._force_desired.Eval(context)[0]
             error = f_d - f
-            if not c.force_integral_band_n or abs(error) <= c.force_integral_band_n:
+            if c.force_integral_hold_s and abs(f_d - fd_previous) > c.force_step_threshold_n:
+                hold_until = t + c.force_integral_hold_s
+            fd_previous = f_d
+            if t > hold_until - 0.5 * CONTROL_PERIOD and (not c.force_integral_band_n
+                                    or abs(error) <= c.force_integral_band_n):
                 error_sum += error
             accel = [0.0, u_x[1], u_x[2]]  # (I - S) u_x
             if c.pose_integral_gain:
@@ -378,9 +475,23 @@ class HybridControlLaw(LeafSystem):
         qddot = solve3(J, [a - b for a, b in zip(accel, jdot_qdot)])
         tau = [tau[i] + M[i][0] * qddot[0] + M[i][1] * qddot[1] + M[i][2] * qddot[2]
                + J[0][i] * force_x for i in range(3)]
+        if mode == CONTACT and c.force_error_friction_compensation:
+            error_lp += self._error_filter_gain * (error - error_lp)
+            push = solve3(J, [1.0, 0.0, 0.0])  # the joints' turn for +x, y and phi held
+            level = c.force_error_friction_compensation * min(
+                max(error_lp / c.force_error_friction_band_n, -1.0), 1.0)
+            friction = self._model.friction_levels
+            tau = [tau[i] + level * friction[i] * math.copysign(1.0, push[i])
+                   for i in range(3)]
+        if mode == CONTACT and self._joint_impedance:
+            stiffness, damping = c.pose_joint_stiffness, c.pose_joint_damping
+            e_q = solve3(J, [0.0, target[1] - x[1], target[2] - x[2]])
+            v_q = solve3(J, [0.0, xd[1], xd[2]])
+            tau = [tau[i] + stiffness[i] * e_q[i] - damping[i] * v_q[i] for i in range(3)]
 
         output.SetFromVector(self._model.command(tau) + [mode] + info + J[0] + J[1] + J[2]
-                             + [timer, x_d, error_sum, y_sum, phi_sum, f, k_used])
+                             + [timer, x_d, error_sum, y_sum, phi_sum, f, k_used, fd_previous,
+                                hold_until, error_lp])
 
 
 class HybridController(Diagram):
@@ -406,7 +517,7 @@ class HybridController(Diagram):
         super().__init__()
         builder = DiagramBuilder()
         law = builder.AddNamedSystem("law", HybridControlLaw(config))
-        split = builder.AddNamedSystem("outputs", Demultiplexer([3, 1, 4, 9, 7]))
+        split = builder.AddNamedSystem("outputs", Demultiplexer([3, 1, 4, 9, 10]))
         builder.Connect(law.get_output_port(), split.get_input_port())
         for port in range(law.num_input_ports()):
             builder.ExportInput(law.get_input_port(port), law.get_input_port(port).get_name())
