@@ -241,10 +241,6 @@ class HybridControllerConfig:
     # transient, the integral only what stiction leaves (see the module doc).
     force_integral_hold_s: float = 0.0
     force_step_threshold_n: float = 1.0
-    # Joint stiffness (N m/rad) and damping (N m s/rad), joints 1-3, on the
-    # pose error of the position-controlled directions mapped to the joints,
-    # J^-1 (I - S) (x_d - x), in contact (zeros = the thesis's law; see the
-    # module doc).
     # Static-friction compensation driven by the force error (ours; 0 = off):
     # in contact each joint gets this fraction (0-1) of the model's Coulomb
     # level F_c, in the direction it turns to push the tip along +x
@@ -254,6 +250,10 @@ class HybridControllerConfig:
     force_error_friction_compensation: float = 0.0
     force_error_friction_band_n: float = 0.25
     force_error_filter_hz: float = 10.0
+    # Joint stiffness (N m/rad) and damping (N m s/rad), joints 1-3, on the
+    # pose error of the position-controlled directions mapped to the joints,
+    # J^-1 (I - S) (x_d - x), in contact (zeros = the thesis's law; see the
+    # module doc).
     pose_joint_stiffness: list[float] = dc.field(default_factory=lambda: [0.0, 0.0, 0.0])
     pose_joint_damping: list[float] = dc.field(default_factory=lambda: [0.0, 0.0, 0.0])
     # Compensate dry friction with the model's F_c (4.10, 4.13, 4.19).
