@@ -6,14 +6,12 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
+from conftest import skip_unless_tool
 from drake_contact.app.cli import main
 from drake_contact.app.drawing import diagram_dot, render_svg, write_diagram
 from drake_contact.diagram import MakeContactDiagram
 from drake_contact.errors import ScenarioError
 from drake_contact.scenario import load_scenario
-
-HAVE_DOT = shutil.which("dot") is not None
-
 
 @pytest.fixture(scope="module")
 def diagram():
@@ -36,7 +34,7 @@ def test_max_depth_zero_draws_the_diagram_as_one_block(diagram):
     assert f"name={diagram.get_name()}" in one_block
 
 
-@pytest.mark.skipif(not HAVE_DOT, reason="Graphviz's dot is not installed")
+@skip_unless_tool("dot", "the diagram drawn as SVG")
 def test_svg_file_is_valid_svg(diagram, tmp_path):
     path = write_diagram(diagram, tmp_path / "d.svg")
     root = ET.parse(path).getroot()

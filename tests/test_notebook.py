@@ -2,7 +2,6 @@
 interpreter running the tests, and shows its figures; the committed file
 carries no outputs."""
 
-import shutil
 import sys
 from pathlib import Path
 
@@ -15,6 +14,7 @@ nbclient = pytest.importorskip(
 pytest.importorskip(
     "ipykernel", reason="running the tutorial needs ipykernel (pip install '.[test]')")
 
+from conftest import needs_tool  # noqa: E402
 from jupyter_client import AsyncKernelManager  # noqa: E402 (installed with nbclient)
 from jupyter_client.kernelspec import KernelSpecManager  # noqa: E402
 
@@ -54,5 +54,5 @@ def test_the_tutorial_runs_and_shows_its_figures():
     assert nb.cells[-1].outputs[0]["text"] == sys.executable
     shown = {mime for output in outputs(nb) for mime in output.get("data", {})}
     assert "image/png" in shown  # the force-tracking figure
-    if shutil.which("dot") is not None:
-        assert "image/svg+xml" in shown  # the diagram
+    needs_tool("dot", "the tutorial's diagram drawn by Graphviz (its other outputs passed)")
+    assert "image/svg+xml" in shown  # the diagram

@@ -18,6 +18,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
+from conftest import needs_tool
 from drake_contact.app import reproduce
 from drake_contact.app.reproduce import JOBS, RESULTS, score, write_report
 
@@ -180,8 +181,8 @@ def test_every_row_states_its_claim_and_each_claim_is_written_once(tmp_path):
 
 @pytest.mark.parametrize("have_dot", [True, False])
 def test_report_embeds_every_figure_and_draws_the_diagram(tmp_path, monkeypatch, have_dot):
-    if have_dot and shutil.which("dot") is None:
-        pytest.skip("Graphviz's dot is not installed")
+    if have_dot:
+        needs_tool("dot", "the report's diagram drawn by Graphviz")
     if not have_dot:
         monkeypatch.setattr(shutil, "which", lambda name: None)
         (tmp_path / "diagram.svg").write_text("stale")

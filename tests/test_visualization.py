@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from pydrake.geometry import MeshcatVisualizer
 
+from conftest import needs_tool
 from drake_contact.app.cli import main
 from drake_contact.diagram import MakeContactDiagram, leaf_systems
 from drake_contact.app.runner import MakeRunDiagram, simulate_scenario
@@ -228,9 +229,8 @@ CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--use-angle=swiftshader",
 
 def screenshot(html_path, png_path, profile):
     """Renders the playback's last frame (it plays once, 1.5 s, and holds)."""
+    needs_tool("chromium", "the Meshcat playback rendered in a browser")
     chromium = shutil.which("chromium")
-    if chromium is None:
-        pytest.skip("chromium is not on PATH (CI installs it: .ci/run)")
     subprocess.run([chromium, *CHROMIUM_FLAGS, f"--user-data-dir={profile}",
                     f"--screenshot={png_path}", html_path.as_uri()],
                    check=True, capture_output=True, timeout=120)
