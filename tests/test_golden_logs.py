@@ -36,6 +36,18 @@ def test_every_golden_log_has_its_sensitivity():
         assert signals == measured, f"{name}: no sensitivity for {sorted(signals - measured)}"
 
 
+def test_every_golden_log_is_guarded_tightly_past_its_switch():
+    """Every signal's allowance stays within golden_logs.TIGHT (1e-3) of its
+    scale before the switch and for 50 ms after it: the sensitivity runs
+    move nothing before the first contact, and diverge only later."""
+    for name in bundled_scenario_names():
+        golden = load_golden(name)
+        t = golden["log/t"]
+        switch = golden_logs.switch_index(golden["log/mode"]) if "log/mode" in golden else -1
+        needed = t[-1] if switch < 0 else min(t[switch] + 0.05, t[-1])
+        assert golden_logs.tight_until(golden) >= needed - 1e-9, name
+
+
 @pytest.mark.parametrize("name", bundled_scenario_names())
 def test_golden_log(name):
     checks, problems = check(name, golden_log(name))
