@@ -1,24 +1,38 @@
 """One command reproduces the thesis: every bundled thesis scenario, its
 figures, a scored report and a browser playback per material.
 
-    drake-contact reproduce [--quick] --out DIR [--jobs N]
+    drake-contact reproduce [--quick] --out DIR [--jobs N] [--seeds 0-2]
 
-Each scenario runs as its own ``drake-contact run`` process (``--jobs`` at a
-time, default one per core), writing ``DIR/<scenario>/`` (logs, metrics,
-figures, ``run.log``); the identification runs also record a Meshcat
-playback (``playback.html``). Then :data:`RESULTS`, the thesis's results of
-SPEC §8, are scored from the runs' ``metrics.json``: for each, what the thesis
-reports, what we measured, the ground truth, the tolerance we hold it to, and
-pass or fail. ``DIR/report.md`` and ``DIR/report.html`` show them with the
-figures embedded: the rows' figures first, then every other figure the runs
-wrote, by run. The report opens with a drawing of the ``nn_styrofoam``
-diagram (``DIR/diagram.dot``; ``DIR/diagram.svg`` when Graphviz's ``dot`` is
-installed).
+Each scenario runs once per seed (default seeds 0, 1 and 2) as its own
+``drake-contact run`` process (``--jobs`` at a time, default one per core),
+writing ``DIR/<scenario>/seed_<s>/`` (logs, metrics, figures, ``run.log``);
+the identification runs of the first seed also record a Meshcat playback
+(``playback.html``). Then :data:`RESULTS`, the thesis's results of SPEC §8,
+are scored from the runs' ``metrics.json``, seed by seed: each result is a
+set of :class:`Bound` s on measured numbers, and a row is reproduced only
+when every seed meets every bound with the bound's margin (long runs are
+chaotic at rounding level, so a seed that sits on a threshold would flip
+between machines). Each row shows the thesis's claim, what we measured (the
+first seed's numbers and the spread over the seeds), the ground truth, the
+bounds, and whether that matches what we expect: a result the faithful model
+does not reproduce is a documented deviation (:attr:`Result.deviation`,
+with its measured cause). ``DIR/report.md`` and ``DIR/report.html`` show the
+rows with the first seed's figures embedded: the rows' figures first, then
+every other figure that seed's runs wrote, by run. The report opens with a
+drawing of the ``nn_styrofoam`` diagram (``DIR/diagram.dot``;
+``DIR/diagram.svg`` when Graphviz's ``dot`` is installed).
+
+The command exits 0 when every row is as expected (reproduced, or a
+documented deviation that still deviates) and 1 when one is not: a result
+that stops reproducing, or a documented deviation that now passes (as
+pytest's strict xfail does: the documentation must then change).
 
 ``--quick`` shortens the long runs (:attr:`Job.quick_duration_s`) and skips
-the neural runs' hybrid-only baselines; every row is still scored. Ctrl-C
-interrupts the running scenarios (each writes its logs up to then) and still
-writes the report, with the rows it could not score marked "not run".
+the neural runs' hybrid-only baselines; every row is still scored, against
+:attr:`Result.expected_quick` where a short run cannot show what the full
+one does. Ctrl-C interrupts the running scenarios (each writes its logs up
+to then) and still writes the report, with the rows it could not score
+marked "not run".
 """
 
 import dataclasses as dc
@@ -77,21 +91,63 @@ class Claim:
     thesis: str
 
 
+@dc.dataclass(frozen=True)
+class Bound:
+    """One numeric criterion of a result, measured on one seed's runs."""
+
+    # What is bounded, with its unit, e.g. "peak force, styrofoam (N)".
+    name: str
+    # The measured value; None when the event never came (e.g. never
+    # settled), which fails the bound.
+    value: float | None
+    # "<=", ">=" or "==" (a count).
+    op: str
+    limit: float
+    # How far inside the limit every seed must be for the row to be
+    # reproduced (same unit; by default 10 % of the limit's scale).
+    margin: float = 0.0
+
+    def holds(self, with_margin=False) -> bool:
+        if self.value is None or math.isnan(self.value):
+            return False
+        margin = self.margin if with_margin else 0.0
+        if self.op == "<=":
+            return self.value <= self.limit - margin
+        if self.op == ">=":
+            return self.value >= self.limit + margin
+        return self.value == self.limit
+
+    def text(self) -> str:
+        """The bound as the report states it."""
+        return f"{self.name} {self.op} {self.limit:g}" + (
+            f" by {self.margin:g}" if self.margin and self.op != "==" else "")
+
+
+def _within(name, value, low, high, margin):
+    """Two bounds: low <= value <= high, each with ``margin``."""
+    return [Bound(name, value, ">=", low, margin), Bound(name, value, "<=", high, margin)]
+
+
 @dc.dataclass
 class Score:
-    """What we measured for one claim."""
+    """What we measured for one claim on one seed."""
 
     measured: str
     truth: str
-    tolerance: str
-    passed: bool | None  # None: not run
+    # The bounds; empty when the runs are missing.
+    bounds: list[Bound] = dc.field(default_factory=list)
     # Figure files (relative to the report) that show it.
     images: list[str] = dc.field(default_factory=list)
+    # Why it could not be scored ("not run ...", "not measured ..."), if so.
+    problem: str = ""
+    # True for "not run" (the runs are missing), False for "not measured".
+    missing: bool = False
 
 
 @dc.dataclass
 class Row:
-    """One thesis result beside ours: a claim's fields, then its score's."""
+    """One thesis result beside ours over the seeds: a claim's fields, then
+    the first seed's measurement, the spread and the verdict."""
 
     experiment: str
     figures: str
@@ -99,13 +155,38 @@ class Row:
     measured: str
     truth: str
     tolerance: str
-    passed: bool | None  # None: not run
+    # True: every seed meets every bound with its margin; False: one does
+    # not (``marginal``: every seed meets the bounds, not their margins);
+    # None: not run.
+    passed: bool | None
+    # What we expect: True for a reproduced result, False for a documented
+    # deviation (``deviation`` says why).
+    expected: bool = True
+    deviation: str = ""
+    marginal: bool = False
+    # Scored on every seed the deviation was documented on (SEEDS): only
+    # then does a deviation that passes count as unexpected (a row that
+    # fails on one seed of three may pass on that seed's neighbours alone).
+    strict: bool = True
     # Figure files (relative to the report) that show it.
     images: list[str] = dc.field(default_factory=list)
 
-    @classmethod
-    def of(cls, claim: Claim, score: Score) -> "Row":
-        return cls(**dc.asdict(claim), **dc.asdict(score))
+    @property
+    def as_expected(self) -> bool:
+        if self.passed is None:
+            return False
+        if self.expected:
+            return self.passed
+        return not self.passed or not self.strict
+
+    def verdict(self) -> str:
+        verdict = {True: "PASS", False: "MARGINAL" if self.marginal else "FAIL",
+                   None: "not run"}[self.passed]
+        if not self.expected and self.passed is not None:
+            verdict += (" (documented deviation)" if self.passed is False else
+                        " (a documented deviation now passes)" if self.strict else
+                        f" (documented deviation over seeds {_seed_list(SEEDS)})")
+        return verdict
 
 
 @dc.dataclass(frozen=True)
@@ -113,9 +194,19 @@ class Result:
     """A thesis claim and the scorer that checks it against the runs."""
 
     claim: Claim
-    # Reads the runs' metrics (raising _Missing for a run that did not
-    # complete) and returns a Score.
+    # Reads one seed's runs' metrics (raising _Missing for a run that did
+    # not complete) and returns a Score.
     scorer: Callable[["_Runs"], Score]
+    # Reproduced by the full run (True), or a documented deviation whose
+    # cause, as measured, is ``deviation``.
+    expected: bool = True
+    deviation: str = ""
+    # The same for --quick, where a short run cannot show what the full one
+    # does (None: as the full run).
+    expected_quick: bool | None = None
+
+    def expectation(self, quick: bool) -> bool:
+        return self.expected if not quick or self.expected_quick is None else self.expected_quick
 
 
 #: The thesis's results (SPEC §8), in its order: each scorer below registers
@@ -123,12 +214,14 @@ class Result:
 RESULTS: list[Result] = []
 
 
-def _result(experiment, figures, thesis):
-    """Registers the decorated scorer in :data:`RESULTS` with its claim."""
+def _result(experiment, figures, thesis, **expectation):
+    """Registers the decorated scorer in :data:`RESULTS` with its claim (and
+    the :class:`Result` fields ``expected``, ``deviation``,
+    ``expected_quick``)."""
     claim = Claim(experiment, figures, thesis)
 
     def register(scorer):
-        RESULTS.append(Result(claim, scorer))
+        RESULTS.append(Result(claim, scorer, **expectation))
         return scorer
     return register
 
@@ -138,14 +231,19 @@ class _Missing(Exception):
 
 
 class _Runs:
-    """The runs' metrics by scenario name; a missing or unfinished run
-    raises _Missing."""
+    """One seed's runs' metrics by scenario name; a missing or unfinished
+    run raises _Missing. ``out`` is the report's folder; the runs are in
+    ``out/<scenario>/seed_<seed>/``."""
 
-    def __init__(self, out: Path):
+    def __init__(self, out: Path, seed: int):
         self.out = out
+        self.seed = seed
+
+    def folder(self, name) -> str:
+        return f"{name}/seed_{self.seed}"
 
     def __getitem__(self, name) -> dict:
-        path = self.out / name / "metrics.json"
+        path = self.out / self.folder(name) / "metrics.json"
         if not path.exists():
             raise _Missing(name)
         metrics = json.loads(path.read_text())
@@ -154,7 +252,8 @@ class _Runs:
         return metrics
 
     def images(self, name, *stems):
-        return [f"{name}/{stem}" for stem in stems if (self.out / name / stem).exists()]
+        return [f"{self.folder(name)}/{stem}" for stem in stems
+                if (self.out / self.folder(name) / stem).exists()]
 
 
 def _pct(x):
@@ -172,13 +271,15 @@ def _time(t):
 @_result("switch from approach to hybrid", "4.2", "force transient at the 5 N switch")
 def _switch(runs):
     s, r = runs["identify_styrofoam"], runs["identify_rubber"]
-    ok = all(m["mode_switches"] == 1 and m["impact_peak_force_n"] <= 40.0 for m in (s, r))
+    bounds = []
+    for material, m in (("styrofoam", s), ("rubber", r)):
+        bounds += [Bound(f"switches, {material}", m["mode_switches"], "==", 1),
+                   Bound(f"peak force, {material} (N)", m["impact_peak_force_n"], "<=", 40.0, 4.0)]
     return Score(
-        f"one switch each; peak {s['impact_peak_force_n']:.1f} N (styrofoam), "
-        f"{r['impact_peak_force_n']:.1f} N (rubber), then 20 N held "
-        f"(mean {s['force_mean_n']:.2f} / {r['force_mean_n']:.2f} N)",
-        "f_d = 20 N", "one switch; peak <= 2 f_d", ok,
-        runs.images("identify_styrofoam", "fig4_2_switch.png"))
+        f"{s['mode_switches']} / {r['mode_switches']} switches; peak "
+        f"{s['impact_peak_force_n']:.1f} N (styrofoam), {r['impact_peak_force_n']:.1f} N "
+        f"(rubber), then 20 N held (mean {s['force_mean_n']:.2f} / {r['force_mean_n']:.2f} N)",
+        "f_d = 20 N", bounds, runs.images("identify_styrofoam", "fig4_2_switch.png"))
 
 
 @_result("sensor noise", "4.4", "about +-2 N")
@@ -187,7 +288,7 @@ def _noise(runs):
     p99 = m["rest_noise_p99_n"]
     return Score(f"+-{p99:.2f} N (99th percentile of |f| at rest), "
                  f"std {m['rest_noise_std_n']:.2f} N",
-                 "0 N (at rest, no contact)", "+-1.5 to +-2.5 N", 1.5 <= p99 <= 2.5,
+                 "0 N (at rest, no contact)", _within("noise p99 (N)", p99, 1.5, 2.5, 0.1),
                  runs.images("sensor_spectrum", "fig4_4_raw_force.png"))
 
 
@@ -198,8 +299,9 @@ def _psd(runs):
     diff, line = m["psd_max_difference_below_100hz_db"], m["line_480hz_above_floor_db"]
     return Score(f"spectra within {diff:.2f} dB below 100 Hz; 480 Hz line (aliased) "
                  f"{line:.1f} dB above the floor",
-                 "the sensor's 480 Hz DAC loop", "within 1 dB below 100 Hz; line > 6 dB",
-                 diff < 1.0 and line > 6.0,
+                 "the sensor's 480 Hz DAC loop",
+                 [Bound("PSD difference below 100 Hz (dB)", diff, "<=", 1.0, 0.1),
+                  Bound("480 Hz line above the floor (dB)", line, ">=", 6.0, 0.6)],
                  runs.images("sensor_spectrum", "fig3_5_psd.png", "fig3_7_rc_gain.png"))
 
 
@@ -219,14 +321,21 @@ def _identification_score(runs, material, images, method):
     measured = (f"{ours} K_e {_k(k(ours))} ({_pct(rel)}), within {int(tol_rel * 100)} % from "
                 f"{_time(settle)}; the thesis's form K_e {_k(k(method))}, f / x "
                 f"{_k(m['stiffness_ratio_final_n_per_m'])} (both biased by the 5 N switch point)")
-    ok = abs(rel) < tol_rel and settle is not None and settle <= tol_time
     return Score(measured, f"K_e = {_k(truth)}",
-                 f"{ours} within {int(tol_rel * 100)} % by {tol_time:g} s", ok,
+                 [Bound(f"|{ours} K_e error| (%)", abs(100 * rel), "<=", 100 * tol_rel,
+                        10 * tol_rel),
+                  Bound(f"{ours} time to within {int(tol_rel * 100)} % (s)", settle, "<=",
+                        tol_time, tol_time / 10)],
                  runs.images(f"identify_{material}", *images))
 
 
 @_result("RLS, styrofoam", "6.1-6.3",
-         "K_e 7.2 k vs f/x 6.8 k (<6 % apart); settles within 0.12 s")
+         "K_e 7.2 k vs f/x 6.8 k (<6 % apart); settles within 0.12 s",
+         expected=False,
+         deviation="rls_matched ends 2.2, 6.3 and 3.4 % low on seeds 0, 1 and 2 and never comes "
+                   "within 5 % on seed 1: its K_e error follows its M_e estimate (-0.12, -0.35 "
+                   "and -0.20 kg against the true 0.01 kg), which the push's small accelerations "
+                   "leave loosely determined after the switch")
 def _rls_styrofoam(runs):
     return _identification_score(
         runs, "styrofoam", ["fig6_1_identification.png", "fig6_3_identification.png"], "rls")
@@ -237,23 +346,29 @@ def _rls_rubber(runs):
     return _identification_score(runs, "rubber", ["fig6_4_identification.png"], "rls")
 
 
-@_result("RLS M_e and B_e", "6.1-6.5", "M_e negative")
+@_result("RLS M_e and B_e", "6.1-6.5", "M_e negative", expected=False,
+         deviation="the thesis's RLS form on its own filtered signals (rls: force through the "
+                   "120 Hz filter, acceleration through F35) estimates M_e +0.58 to +0.84 kg on "
+                   "both materials over seeds 0-2; the same RLS on signals through one common "
+                   "filter (rls_matched) gives the negative M_e the thesis found (-0.10 to "
+                   "-0.35 kg), so the mismatch of the two filters' lags sets the sign")
 def _rls_mass(runs):
-    masses = {mat: runs[f"identify_{mat}"]["identified_impedance_rls_matched"]["mass"]
-              for mat in ("styrofoam", "rubber")}
-    thesis_form = {mat: runs[f"identify_{mat}"]["identified_impedance_rls"]["mass"]
-                   for mat in ("styrofoam", "rubber")}
-    damping = {mat: runs[f"identify_{mat}"]["identified_impedance_rls_matched"]["damping"]
-               for mat in ("styrofoam", "rubber")}
-    truth = {mat: runs[f"identify_{mat}"]["true_impedance"] for mat in ("styrofoam", "rubber")}
-    return Score(f"rls_matched M_e {masses['styrofoam']:.2f} / {masses['rubber']:.2f} kg, "
-                 f"B_e {damping['styrofoam']:.0f} / {damping['rubber']:.0f} N s/m "
-                 f"(styrofoam / rubber); the thesis's form M_e {thesis_form['styrofoam']:+.2f} / "
-                 f"{thesis_form['rubber']:+.2f} kg",
+    """The thesis's RLS form (``rls``: its filtered signals) must give the
+    negative M_e the thesis found, by more than the true 10 g."""
+    materials = ("styrofoam", "rubber")
+    impedance = {(mat, name): runs[f"identify_{mat}"][f"identified_impedance_{name}"]
+                 for mat in materials for name in ("rls", "rls_matched")}
+    truth = {mat: runs[f"identify_{mat}"]["true_impedance"] for mat in materials}
+    return Score(f"the thesis's form (rls) M_e {impedance['styrofoam', 'rls']['mass']:+.3f} / "
+                 f"{impedance['rubber', 'rls']['mass']:+.3f} kg, B_e "
+                 f"{impedance['styrofoam', 'rls']['damping']:.0f} / "
+                 f"{impedance['rubber', 'rls']['damping']:.0f} N s/m (styrofoam / rubber); "
+                 f"rls_matched M_e {impedance['styrofoam', 'rls_matched']['mass']:+.3f} / "
+                 f"{impedance['rubber', 'rls_matched']['mass']:+.3f} kg",
                  f"M_e {truth['styrofoam']['mass']:g} kg, B_e {truth['styrofoam']['damping']:g} / "
                  f"{truth['rubber']['damping']:g} N s/m",
-                 "M_e < 0 (the transient cannot resolve 10 g)",
-                 all(v < 0 for v in masses.values()), [])
+                 [Bound(f"rls M_e, {mat} (kg)", impedance[mat, "rls"]["mass"], "<=", 0.0,
+                        truth[mat]["mass"]) for mat in materials])
 
 
 @_result("NN identification, styrofoam", "6.6-6.8", "K_e 6.6 k vs f/x 6.7 k; about 0.6 s to learn")
@@ -264,13 +379,17 @@ def _nn_styrofoam(runs):
 
 
 @_result("NN identification, smaller learning rate", "6.6",
-         "a smaller rate takes more time to learn")
+         "a smaller rate takes more time to learn", expected=False,
+         deviation="both rates bring K_e within 10 % 0.12 to 0.18 s after the switch, and which "
+                   "one first depends on the seed: the smaller rate is 0.03 s later on seed 0 "
+                   "and 0.03 and 0.06 s earlier on seeds 1 and 2")
 def _nn_slower(runs):
     m = runs["identify_styrofoam"]
     fast, slow = (m[f"identification_time_10pct_{n}_s"] for n in ("nn_offset", "nn_slow"))
-    ok = fast is not None and (slow is None or slow > fast)
+    later = None if fast is None else (math.inf if slow is None else slow - fast)
     return Score(f"within 10 % from {_time(slow)} at 2e-5 vs {_time(fast)} at 1e-4",
-                 "K_e = 7.00 kN/m", "slower than at 1e-4", ok,
+                 "K_e = 7.00 kN/m",
+                 [Bound("time to 10 % at 2e-5 minus at 1e-4 (s)", later, ">=", 0.0, 0.1)],
                  runs.images("identify_styrofoam", "fig6_6_identification.png"))
 
 
@@ -282,31 +401,36 @@ def _nn_rubber(runs):
 @_result("hybrid only, K_fp = 0.25, no integral", "6.10", "cannot reach the desired force")
 def _hybrid_only(runs):
     s, r = runs["hybrid_p_only_styrofoam"], runs["hybrid_p_only_rubber"]
-    ok = all(m["force_mean_abs_error_n"] > 2.0 for m in (s, r))
     return Score(f"mean |f - f_d| {s['force_mean_abs_error_n']:.2f} N (styrofoam), "
                  f"{r['force_mean_abs_error_n']:.2f} N (rubber)",
-                 "f_d: 20 / 10 N square wave", "mean |f - f_d| > 2 N", ok,
+                 "f_d: 20 / 10 N square wave",
+                 [Bound(f"mean |f - f_d|, {material} (N)", m["force_mean_abs_error_n"], ">=",
+                        2.0, 0.2) for material, m in (("styrofoam", s), ("rubber", r))],
                  runs.images("hybrid_p_only_styrofoam", "fig6_10_force_tracking.png"))
 
 
 def _nn_tracking(runs, names, images):
-    parts, ok = [], True
+    parts, bounds = [], []
     for name in names:
         m = runs[name]
         rmse = m["force_rmse_n"]
         adapt = m.get("adaptation_time_s")
         baseline = m.get("baseline_force_rmse_n")
-        ok &= rmse <= 1.5 and adapt is not None and adapt <= 10.0
+        bounds += [Bound(f"{name} RMSE 10-20 s after contact (N)", rmse, "<=", 1.5, 0.15),
+                   Bound(f"{name} adaptation time (s)", adapt, "<=", 10.0, 1.0)]
         parts.append(f"{name}: RMSE {rmse:.2f} N" +
                      (f" (hybrid part alone {baseline:.2f} N)" if baseline is not None else "") +
                      f", adapted in {_time(adapt)}")
-    return Score("; ".join(parts), "f_d (true force scored)",
-                 "RMSE 10-20 s after contact <= 1.5 N; adaptation <= 10 s", ok,
+    return Score("; ".join(parts), "f_d (true force scored)", bounds,
                  [img for name, stem in zip(names, images) for img in runs.images(name, stem)])
 
 
 @_result("NN controller, styrofoam / rubber", "6.11, 6.16",
-         "follows the 10/20 N square wave about 10 s in")
+         "follows the 10/20 N square wave about 10 s in", expected=False,
+         deviation="nn_styrofoam follows, but not with the margin: its RMSE 10-20 s after contact "
+                   "is 1.38 to 1.39 N on every seed, within 0.15 N of the 1.5 N bound (each 5 s "
+                   "window after the first stays at 1.36 to 1.51 N), and it adapts 10.5 s after "
+                   "contact on seed 1; nn_rubber meets every bound")
 def _nn_square(runs):
     return _nn_tracking(runs, ["nn_styrofoam", "nn_rubber"],
                         ["fig6_11_force_tracking.png", "fig6_16_force_tracking.png"])
@@ -318,7 +442,13 @@ def _nn_sine(runs):
                         ["fig6_12_force_tracking.png", "fig6_17_force_tracking.png"])
 
 
-@_result("small learning rate 1e-5", "6.13-6.14", "lags at first, follows after a few minutes")
+@_result("small learning rate 1e-5", "6.13-6.14", "lags at first, follows after a few minutes",
+         expected=False, expected_quick=True,
+         deviation="it lags, then adapts 68.5 to 69 s after contact, as the thesis shows, but "
+                   "loses contact 82.6 to 83.1 s after contact on every seed of 0-2, and 32 to "
+                   "34 times to the end (the thesis's weight update has no bound: the weights "
+                   "keep drifting after adapting); --quick's 85 s run ends before the first "
+                   "loss")
 def _small_lr(runs):
     """Lags first, adapts after 30-200 s, and then keeps following: every
     5 s window from the adaptation to the end of the run under 1.5 N, and
@@ -332,18 +462,19 @@ def _small_lr(runs):
     width = 5.0
     late = [] if adapt is None else windows[math.ceil(adapt / width - 1e-9):]
     losses = m.get("contact_losses", 0)
-    ok = (first > 2.0 and adapt is not None and 30.0 <= adapt <= 200.0 and bool(late)
-          and max(late) < 1.5 and losses == 0)
     measured = f"first 5 s RMSE {first:.2f} N; adapted {_time(adapt)} after contact"
     if late:
         measured += (f"; after it, 5 s RMSE up to {max(late):.2f} N over {len(late)} windows to "
                      "the end")
     if losses:
         measured += (f"; contact lost {losses} times, first {_time(m.get('first_contact_loss_s'))}"
-                     " after contact (the thesis's update lets the weights drift without "
-                     "bound: see the README, Fig 6.14)")
-    return Score(measured, "f_d", "first window > 2 N; adaptation in 30-200 s; then every 5 s "
-                 "window < 1.5 N to the end and no contact lost", ok,
+                     " after contact")
+    return Score(measured, "f_d",
+                 [Bound("first 5 s RMSE (N)", first, ">=", 2.0, 0.2),
+                  *_within("adaptation time after contact (s)", adapt, 30.0, 200.0, 3.0),
+                  Bound("largest 5 s RMSE after adapting (N)", max(late) if late else None,
+                        "<=", 1.5, 0.15),
+                  Bound("contact losses", losses, "==", 0)],
                  runs.images("nn_small_lr", "fig6_13_force_tracking.png"))
 
 
@@ -351,10 +482,12 @@ def _small_lr(runs):
 def _y_phi(runs):
     m = runs["nn_styrofoam"]
     y, phi = m["y_max_abs_error_m"], m["phi_max_abs_error_rad"]
-    ok = 0 < y < 2e-3 and 0 < phi < 0.02
     return Score(f"max |y| {y * 1e3:.2f} mm, max |phi| {phi * 1e3:.1f} mrad "
-                 "(true pose, nn_styrofoam)",
-                 "y_d = 0, phi_d = 0", "non-zero, |y| < 2 mm, |phi| < 20 mrad", ok,
+                 "(true pose, nn_styrofoam)", "y_d = 0, phi_d = 0",
+                 [Bound("max |y| (mm)", y * 1e3, ">=", 0.0, 0.01),
+                  Bound("max |y| (mm)", y * 1e3, "<=", 2.0, 0.2),
+                  Bound("max |phi| (mrad)", phi * 1e3, ">=", 0.0, 0.1),
+                  Bound("max |phi| (mrad)", phi * 1e3, "<=", 20.0, 2.0)],
                  runs.images("nn_styrofoam", "fig6_11_force_tracking.png"))
 
 
@@ -363,76 +496,149 @@ def _adaptation(runs):
     m = runs["nn_rubber_sine"]
     adapt = m.get("adaptation_time_s")
     return Score(f"{_time(adapt)} (first 5 s window with RMSE < 1.5 N, nn_rubber_sine)",
-                 "f_d", "<= 10 s", adapt is not None and adapt <= 10.0,
+                 "f_d", [Bound("adaptation time (s)", adapt, "<=", 10.0, 1.0)],
                  runs.images("nn_rubber_sine", "fig6_17_force_tracking.png"))
 
 
-def score(out_dir) -> list[Row]:
-    """The report's rows from the runs in ``out_dir``; a row whose runs are
-    missing or did not complete is marked "not run"."""
-    runs = _Runs(Path(out_dir))
+#: The seeds a reproduction scores by default.
+SEEDS = (0, 1, 2)
+
+
+def _score_seed(result: Result, runs: _Runs) -> Score:
+    try:
+        return result.scorer(runs)
+    except _Missing as missing:
+        return Score("", "", problem=f"not run ({missing} did not complete)", missing=True)
+    except KeyError as missing:
+        # A run too short for the result (e.g. no scoring window) lacks the metric.
+        return Score("", "", problem=f"not measured (metric {missing} missing: run too short?)")
+
+
+def spread(scores) -> str:
+    """Each bound's value over the seeds: ``name a-b`` (one value if equal)."""
+    values = {}
+    for scored in scores:
+        for bound in scored.bounds:
+            values.setdefault(bound.name, []).append(bound.value)
+    parts = []
+    for name, seen in values.items():
+        if any(v is None for v in seen):
+            parts.append(f"{name} " + ", ".join("never" if v is None else f"{v:.3g}" for v in seen))
+        elif min(seen) == max(seen):
+            parts.append(f"{name} {min(seen):.3g}")
+        else:
+            parts.append(f"{name} {min(seen):.3g} to {max(seen):.3g}")
+    return "; ".join(parts)
+
+
+def score(out_dir, *, seeds=SEEDS, quick=False) -> list[Row]:
+    """The report's rows from the runs in ``out_dir``, each over ``seeds``;
+    a row whose runs are missing on a seed is marked "not run"."""
+    out = Path(out_dir)
     rows = []
     for result in RESULTS:
-        try:
-            scored = result.scorer(runs)
-        except _Missing as missing:
-            scored = Score(f"not run ({missing} did not complete)", "", "", None)
-        except KeyError as missing:
-            # A run too short for the result (e.g. no scoring window) lacks the metric.
-            scored = Score(f"not measured (metric {missing} missing: run too short?)", "", "",
-                           False)
-        rows.append(Row.of(result.claim, scored))
+        scores = [_score_seed(result, _Runs(out, seed)) for seed in seeds]
+        first = scores[0]
+        tolerance = "; ".join(dict.fromkeys(b.text() for sc in scores for b in sc.bounds))
+        if any(sc.missing for sc in scores):
+            passed, marginal = None, False
+            measured = next(sc.problem for sc in scores if sc.missing)
+        elif any(sc.problem for sc in scores):
+            passed, marginal = False, False
+            measured = next(sc.problem for sc in scores if sc.problem)
+        else:
+            holds = all(b.holds() for sc in scores for b in sc.bounds)
+            passed = all(b.holds(with_margin=True) for sc in scores for b in sc.bounds)
+            marginal = holds and not passed
+            measured = first.measured
+            if len(seeds) > 1:
+                measured += f" [seed {seeds[0]}; over seeds {_seed_list(seeds)}: {spread(scores)}]"
+        rows.append(Row(**dc.asdict(result.claim), measured=measured, truth=first.truth,
+                        tolerance=tolerance, passed=passed,
+                        expected=result.expectation(quick), deviation=result.deviation,
+                        marginal=marginal, strict=set(SEEDS) <= set(seeds),
+                        images=first.images))
     return rows
 
 
-def _run_command(job: Job, out: Path, quick: bool) -> list[str]:
+def _seed_list(seeds) -> str:
+    seeds = list(seeds)
+    if seeds == list(range(seeds[0], seeds[-1] + 1)) and len(seeds) > 2:
+        return f"{seeds[0]}-{seeds[-1]}"
+    return ", ".join(str(s) for s in seeds)
+
+
+def parse_seeds(text: str) -> tuple[int, ...]:
+    """``"0-2"``, ``"0,3,7"`` or ``"4"`` as a tuple of seeds; ValueError
+    names what is wrong."""
+    seeds = []
+    for part in text.split(","):
+        low, _, high = part.strip().partition("-")
+        if not low.isdigit() or (high and not high.isdigit()):
+            raise ValueError(f"'{part.strip()}' is not a seed or a range a-b of seeds >= 0")
+        seeds += range(int(low), int(high or low) + 1)
+    if not seeds or len(set(seeds)) != len(seeds):
+        raise ValueError("must name each seed once")
+    return tuple(seeds)
+
+
+def run_folder(out: Path, scenario: str, seed: int) -> Path:
+    """Where one scenario's run for one seed writes."""
+    return Path(out) / scenario / f"seed_{seed}"
+
+
+def _run_command(job: Job, out: Path, quick: bool, seed: int = 0, *,
+                 record=False) -> list[str]:
+    folder = run_folder(out, job.scenario, seed)
     command = [sys.executable, "-m", "drake_contact", "run", job.scenario,
-               "--out", str(out / job.scenario)]
+               "--out", str(folder), "--seed", str(seed)]
     if quick:
         command.append("--no-baseline")
         if job.quick_duration_s is not None:
             command += ["--duration", str(job.quick_duration_s)]
     elif job.baseline_window:
         command.append("--baseline-window")
-    if job.record:
-        command += ["--record", str(out / job.scenario / "playback.html")]
+    if job.record and record:
+        command += ["--record", str(folder / "playback.html")]
     return command
 
 
-def run_all(out_dir, *, quick=False, jobs=None, progress=print) -> dict:
-    """Runs :data:`JOBS` as ``drake-contact run`` processes, ``jobs`` at a
-    time; returns {scenario: exit status} (None: not started). On Ctrl-C the
+def run_all(out_dir, *, quick=False, jobs=None, seeds=SEEDS, progress=print) -> dict:
+    """Runs :data:`JOBS` once per seed as ``drake-contact run`` processes,
+    ``jobs`` at a time (the first seed records the playbacks); returns
+    {(scenario, seed): exit status} (None: not started). On Ctrl-C the
     running ones are interrupted (they write their logs) and the rest are
     not started; KeyboardInterrupt is re-raised after they have exited."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     jobs = jobs or os.cpu_count() or 1
-    pending = list(JOBS)
+    pending = [(job, seed) for job in JOBS for seed in seeds]
     running = {}
-    status = {job.scenario: None for job in JOBS}
+    status = {(job.scenario, seed): None for job, seed in pending}
     try:
         while pending or running:
             while pending and len(running) < jobs:
-                job = pending.pop(0)
-                (out / job.scenario).mkdir(parents=True, exist_ok=True)
-                log = open(out / job.scenario / "run.log", "w")
-                running[job.scenario] = (subprocess.Popen(
-                    _run_command(job, out, quick), stdout=log, stderr=subprocess.STDOUT),
-                    log, time.perf_counter())
-                progress(f"started  {job.scenario}")
-            for name, (process, log, start) in list(running.items()):
+                job, seed = pending.pop(0)
+                folder = run_folder(out, job.scenario, seed)
+                folder.mkdir(parents=True, exist_ok=True)
+                log = open(folder / "run.log", "w")
+                command = _run_command(job, out, quick, seed, record=seed == seeds[0])
+                running[job.scenario, seed] = (subprocess.Popen(
+                    command, stdout=log, stderr=subprocess.STDOUT), log, time.perf_counter())
+                progress(f"started  {job.scenario} seed {seed}")
+            for key, (process, log, start) in list(running.items()):
                 if process.poll() is not None:
                     log.close()
-                    status[name] = process.returncode
-                    del running[name]
-                    progress(f"finished {name} (exit {process.returncode}) in "
+                    status[key] = process.returncode
+                    del running[key]
+                    progress(f"finished {key[0]} seed {key[1]} (exit {process.returncode}) in "
                              f"{time.perf_counter() - start:.0f} s")
             time.sleep(0.2)
     except KeyboardInterrupt:
         # The children got the same SIGINT (one process group): wait for
         # them to write their logs.
-        for name, (process, log, _) in running.items():
-            status[name] = process.wait()
+        for key, (process, log, _) in running.items():
+            status[key] = process.wait()
             log.close()
         raise
     return status
@@ -469,17 +675,19 @@ def _natural(path: Path):
     return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", path.name)]
 
 
-def other_figures(out_dir, scenarios, shown) -> dict[str, list[str]]:
-    """Every ``*.png`` in ``out_dir/<scenario>/`` and its ``baseline/`` that is
-    not in ``shown``, as paths relative to ``out_dir``, by scenario folder:
-    ``scenarios`` first, then any other folder in ``out_dir``."""
+def other_figures(out_dir, scenarios, shown, seed=0) -> dict[str, list[str]]:
+    """Every ``*.png`` of one seed's runs (``out_dir/<scenario>/seed_<seed>/``
+    and its ``baseline/``) that is not in ``shown``, as paths relative to
+    ``out_dir``, by scenario: ``scenarios`` first, then any other folder in
+    ``out_dir``."""
     out = Path(out_dir)
-    folders = list(scenarios) + sorted(
+    folders = list(dict.fromkeys(scenarios)) + sorted(
         d.name for d in out.iterdir() if d.is_dir() and d.name not in scenarios)
     figures = {}
     for name in folders:
+        run = run_folder(out, name, seed)
         images = [p.relative_to(out).as_posix()
-                  for folder in (out / name, out / name / "baseline")
+                  for folder in (run, run / "baseline")
                   for p in sorted(folder.glob("*.png"), key=_natural)]
         images = [image for image in images if image not in shown]
         if images:
@@ -497,10 +705,23 @@ def figure_caption(image) -> str:
     return caption + (" (hybrid-only baseline)" if path.parent.name == "baseline" else "")
 
 
-def write_report(out_dir, rows, *, quick, status, interrupted=False, wall_s=None) -> Path:
+def summary_line(rows) -> str:
+    """How the rows came out against what we expect, in one sentence."""
+    reproduced = sum(r.passed is True and r.expected for r in rows)
+    deviations = sum(r.passed is False and not r.expected for r in rows)
+    unexpected = [r.experiment for r in rows if r.passed is not None and not r.as_expected]
+    missing = sum(r.passed is None for r in rows)
+    return (f"{reproduced} of {len(rows)} results reproduced, {deviations} documented "
+            f"deviations, {len(unexpected)} not as expected"
+            + (f" ({', '.join(unexpected)})" if unexpected else "")
+            + (f", {missing} not run" if missing else ""))
+
+
+def write_report(out_dir, rows, *, quick, status, seeds=SEEDS, interrupted=False,
+                 wall_s=None) -> Path:
     """Writes ``report.md``, ``report.html`` and the diagram's drawing
-    (:func:`write_diagram_drawing`) in ``out_dir``; returns the Markdown's
-    path."""
+    (:func:`write_diagram_drawing`) in ``out_dir``; ``status`` is
+    {(scenario, seed): exit status or None}. Returns the Markdown's path."""
     out = Path(out_dir)
     svg = write_diagram_drawing(out)
     diagram_md = (f"The `{DIAGRAM_SCENARIO}` diagram: [diagram.svg](diagram.svg) "
@@ -508,33 +729,36 @@ def write_report(out_dir, rows, *, quick, status, interrupted=False, wall_s=None
                   f"The `{DIAGRAM_SCENARIO}` diagram as Graphviz DOT text: "
                   "[diagram.dot](diagram.dot) (`apt-get install graphviz` renders it).")
     shown = {image for r in rows for image in r.images}
-    others = other_figures(out, status, shown)
-    passed = sum(r.passed is True for r in rows)
-    failed = sum(r.passed is False for r in rows)
-    missing = sum(r.passed is None for r in rows)
+    scenarios = [name for name, _ in status]
+    others = other_figures(out, scenarios, shown, seeds[0])
     title = "drake_contact: the thesis reproduced" + (" (quick)" if quick else "")
-    summary = (f"{passed} of {len(rows)} results pass, {failed} fail, {missing} not run"
+    summary = (summary_line(rows) + f", over seeds {_seed_list(seeds)}"
                + (" — INTERRUPTED: partial report" if interrupted else "")
                + (f"; {wall_s:.0f} s wall time" if wall_s is not None else "") + ".")
     mode = ("--quick: long runs shortened, no hybrid-only baselines (the full run: "
             "`drake-contact reproduce --out DIR`)." if quick else "Full run.")
+    rule = ("A result is reproduced when every seed meets every bound by the bound's margin "
+            f"(figures: seed {seeds[0]}).")
     header = ["experiment", "thesis figure", "thesis reports", "measured (ours)",
-              "ground truth", "tolerance", "result"]
+              "ground truth", "bounds", "result"]
 
-    def verdict(row):
-        return {True: "PASS", False: "FAIL", None: "not run"}[row.passed]
-
-    md = [f"# {title}", "", summary, "", mode, "", diagram_md, "",
+    md = [f"# {title}", "", summary, "", mode, "", rule, "", diagram_md, "",
           "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for r in rows:
-        cells = [r.experiment, r.figures, r.thesis, r.measured, r.truth, r.tolerance, verdict(r)]
+        cells = [r.experiment, r.figures, r.thesis, r.measured, r.truth, r.tolerance, r.verdict()]
         md.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
+    deviations = [r for r in rows if r.deviation]
+    if deviations:
+        md += ["", "## Documented deviations", ""]
+        md += [f"- {r.experiment} (Fig {r.figures}): {r.deviation}." for r in deviations]
     md += ["", "## Runs", ""]
-    for name, code in status.items():
-        md.append(f"- `{name}`: " + ("not started" if code is None else f"exit {code}")
-                  + f" ([metrics]({name}/metrics.json), [log]({name}/run.log))")
-    playbacks = [f"{name}/playback.html" for name in status
-                 if (out / name / "playback.html").exists()]
+    for (name, seed), code in status.items():
+        folder = run_folder(".", name, seed).as_posix()
+        md.append(f"- `{name}` seed {seed}: " + ("not started" if code is None else f"exit {code}")
+                  + f" ([metrics]({folder}/metrics.json), [log]({folder}/run.log))")
+    playbacks = [f"{run_folder('.', name, seeds[0]).as_posix()}/playback.html"
+                 for name in dict.fromkeys(scenarios)
+                 if (run_folder(out, name, seeds[0]) / "playback.html").exists()]
     if playbacks:
         md += ["", "Meshcat playbacks (open in a browser): "
                + ", ".join(f"[{p}]({p})" for p in playbacks)]
@@ -552,7 +776,8 @@ def write_report(out_dir, rows, *, quick, status, interrupted=False, wall_s=None
     path.write_text("\n".join(md) + "\n")
 
     e = html.escape
-    body = [f"<h1>{e(title)}</h1>", f"<p>{e(summary)}</p>", f"<p>{e(mode)}</p>"]
+    body = [f"<h1>{e(title)}</h1>", f"<p>{e(summary)}</p>", f"<p>{e(mode)}</p>",
+            f"<p>{e(rule)}</p>"]
     if svg:
         body.append(f"<figure><img src='diagram.svg' alt='the {DIAGRAM_SCENARIO} diagram'>"
                     f"<figcaption>The {DIAGRAM_SCENARIO} diagram, one level of subsystems "
@@ -564,11 +789,16 @@ def write_report(out_dir, rows, *, quick, status, interrupted=False, wall_s=None
                     f"<pre>{e((out / 'diagram.dot').read_text())}</pre>")
     body += ["<table><tr>" + "".join(f"<th>{e(h)}</th>" for h in header) + "</tr>"]
     for r in rows:
-        cls = {True: "pass", False: "fail", None: "missing"}[r.passed]
+        cls = ("missing" if r.passed is None else "pass" if r.passed and r.expected
+               else "deviation" if r.as_expected else "fail")
         cells = [r.experiment, r.figures, r.thesis, r.measured, r.truth, r.tolerance]
         body.append("<tr>" + "".join(f"<td>{e(c)}</td>" for c in cells)
-                    + f"<td class='{cls}'>{verdict(r)}</td></tr>")
+                    + f"<td class='{cls}'>{r.verdict()}</td></tr>")
     body.append("</table>")
+    if deviations:
+        body.append("<h2>Documented deviations</h2><ul>" + "".join(
+            f"<li>{e(r.experiment)} (Fig {e(r.figures)}): {e(r.deviation)}.</li>"
+            for r in deviations) + "</ul>")
     if playbacks:
         body.append("<p>Meshcat playbacks: " + ", ".join(
             f"<a href='{e(p)}'>{e(p)}</a>" for p in playbacks) + "</p>")
@@ -587,25 +817,28 @@ def write_report(out_dir, rows, *, quick, status, interrupted=False, wall_s=None
     style = ("body{font-family:sans-serif;max-width:1200px;margin:auto}"
              "table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:4px;"
              "vertical-align:top;font-size:13px}.pass{background:#cfc}.fail{background:#fcc}"
-             ".missing{background:#eee}img{max-width:100%}")
+             ".deviation{background:#fec}.missing{background:#eee}img{max-width:100%}")
     (out / "report.html").write_text(
         f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{e(title)}</title>"
         f"<style>{style}</style></head><body>{''.join(body)}</body></html>\n")
     return path
 
 
-def reproduce(out_dir, *, quick=False, jobs=None, progress=print) -> tuple[list[Row], bool]:
-    """Runs everything and writes the report; returns (rows, interrupted)."""
+def reproduce(out_dir, *, quick=False, jobs=None, seeds=SEEDS,
+              progress=print) -> tuple[list[Row], bool]:
+    """Runs everything over ``seeds`` and writes the report; returns (rows,
+    interrupted)."""
     start = time.perf_counter()
     interrupted = False
     try:
-        status = run_all(out_dir, quick=quick, jobs=jobs, progress=progress)
+        status = run_all(out_dir, quick=quick, jobs=jobs, seeds=seeds, progress=progress)
     except KeyboardInterrupt:
         interrupted = True
-        status = {job.scenario: _exit_status(Path(out_dir) / job.scenario) for job in JOBS}
-    rows = score(out_dir)
-    path = write_report(out_dir, rows, quick=quick, status=status, interrupted=interrupted,
-                        wall_s=time.perf_counter() - start)
+        status = {(job.scenario, seed): _exit_status(run_folder(out_dir, job.scenario, seed))
+                  for job in JOBS for seed in seeds}
+    rows = score(out_dir, seeds=seeds, quick=quick)
+    path = write_report(out_dir, rows, quick=quick, status=status, seeds=seeds,
+                        interrupted=interrupted, wall_s=time.perf_counter() - start)
     progress(f"wrote {path} and {path.with_suffix('.html')}")
     return rows, interrupted
 
