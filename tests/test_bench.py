@@ -16,6 +16,9 @@ from drake_contact.app.bench import (
     load_bench_scenario, profile_scenario)
 from drake_contact.diagram import leaf_systems
 
+#: One worker runs this module, so its module fixture runs once (-n auto).
+pytestmark = pytest.mark.xdist_group("test_bench")
+
 #: Long enough for the contact switch to be near, short enough for CI.
 DURATION = 0.5
 

@@ -16,6 +16,9 @@ from drake_contact.faults import ChainFaults, FaultClock, FaultConfig
 from drake_contact.identification.identifiers import IdentifierConfig
 from drake_contact.plant.compliant_wall import CompliantWall, EnvironmentConfig
 
+#: One worker runs this module, so its module fixture runs once (-n auto).
+pytestmark = pytest.mark.xdist_group("test_environment_change")
+
 DT = 1e-3  # the logs' sample period (s)
 
 

@@ -87,6 +87,7 @@ def test_the_comparison_catches_a_sign(monkeypatch):
 
 
 @pytest.mark.parametrize("signal", ["force_filtered", "impedance_rls", "tip_velocity_measured"])
+@pytest.mark.xdist_group("guarded_run")
 def test_the_comparison_catches_a_one_sample_delay(guarded_run, signal):
     t = guarded_run["t"]
     window = np.flatnonzero(t >= t[-1] - golden_logs.WINDOW_S + 1e-9)
@@ -97,11 +98,13 @@ def test_the_comparison_catches_a_one_sample_delay(guarded_run, signal):
     assert any(f"'{signal}'" in p for p in problems)
 
 
+@pytest.mark.xdist_group("guarded_run")
 def test_the_comparison_catches_a_moved_switch(guarded_run):
     moved = dict(guarded_run, mode=np.roll(guarded_run["mode"], 1))
     assert any("contact switch moved" in p for p in _fails(moved, expect="the switch moved"))
 
 
+@pytest.mark.xdist_group("guarded_run")
 def test_the_unperturbed_run_passes_with_a_margin(guarded_run):
     checks, problems = check(GUARDED, guarded_run)
     assert not problems

@@ -13,6 +13,9 @@ from drake_contact.app.metrics import (
 from drake_contact.identification.identifiers import IdentifierConfig
 from drake_contact.scenario import ScoringConfig
 
+#: One worker runs this module, so its module fixture runs once (-n auto).
+pytestmark = pytest.mark.xdist_group("test_metrics")
+
 DT = 1e-3  # the logs' sample period (s)
 
 

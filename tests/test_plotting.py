@@ -16,6 +16,9 @@ from drake_contact.app.plotting import (
     plot_sensor_figures, plot_signal, plot_tip_errors)
 from drake_contact.scenario import Scenario
 
+#: One worker runs this module, so its module fixture runs once (-n auto).
+pytestmark = pytest.mark.xdist_group("test_plotting")
+
 N = 50
 
 

@@ -45,6 +45,7 @@ def _table_rows(markdown):
     return [re.split(r"(?<!\\)\|", line.strip())[1:-1] for line in lines[1:]]
 
 
+@pytest.mark.xdist_group("reproduce_quick")
 def test_quick_reproduction_fills_every_row_and_every_row_is_as_expected(quick):
     out, result = quick
     assert result.returncode == 0, result.stdout + result.stderr
@@ -64,6 +65,7 @@ def test_quick_reproduction_fills_every_row_and_every_row_is_as_expected(quick):
     assert "Documented deviations" in report_html
 
 
+@pytest.mark.xdist_group("reproduce_quick")
 def test_quick_reproduction_writes_the_figures_and_embeds_them(quick):
     out, _ = quick
     expected = {

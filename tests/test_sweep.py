@@ -16,6 +16,9 @@ from matplotlib.figure import Figure
 from drake_contact.app.sweep import Task, load_sweep, run_sweep, sweeps_dir
 from drake_contact.app.sweep_figures import plot_heat_map
 
+#: One worker runs this module, so its module fixture runs once (-n auto).
+pytestmark = pytest.mark.xdist_group("test_sweep")
+
 #: push_constant rests through the tare and pushes from 2.1 s; 1e9 N/m makes
 #: its force run away (diverged) within milliseconds of the touch.
 SMALL = """

@@ -20,6 +20,9 @@ from drake_contact.app.runner import MakeRunDiagram, simulate_scenario
 from drake_contact.scenario import load_scenario
 from drake_contact.app.visualization import ContactVisualizer, ContactVisualizerParams, new_meshcat
 
+#: One worker runs this module, so its module fixture runs once (-n auto).
+pytestmark = pytest.mark.xdist_group("test_visualization")
+
 PARAMS = ContactVisualizerParams()
 FPS = 1.0 / PARAMS.publish_period
 ARM = "/drake/visualizer/kiguchi_arm"
