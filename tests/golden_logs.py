@@ -12,11 +12,12 @@ Why a sensitivity and not a fixed tolerance. The closed loop amplifies
 rounding: the LuGre joints' stick-slip and the encoder and ADC quantizers
 turn a last-bit difference into a different trajectory, from the contact
 switch on. Another CPU (OpenBLAS picks its kernels by CPU, and they sum in
-another order) moves the identification scenarios by up to 4e-7 of a
+another order) moves the identification scenarios by up to 4e-6 of a
 signal's scale 0.35 s after the switch, and by nothing before it. So the
 fixture records how far each signal moves, sample by sample, when the
 recording machine reruns the scenario with the rounding disturbed
-(:data:`ULP_RUNS`: one ulp more or less motor torque on one joint;
+(:data:`SENSITIVITY_RUNS`: one joint's motor torque or the force reading
+off by a relative :data:`PERTURBATION` from the first contact on;
 :data:`KERNEL_RUNS`: OpenBLAS's other kernels this CPU can run), and the
 comparison allows :data:`MARGIN` times that (never less than :data:`FLOOR`
 of the scale). Before the switch, where nothing is amplified, that leaves
@@ -202,9 +203,10 @@ def relative_deviation(actual, expected) -> np.ndarray:
 
 def perturbed_logs(scenario_name: str, end_s: float):
     """{run name: log} of the sensitivity runs, cut as the fixture is."""
-    runs = {name: select(simulate_log(scenario_name, end_s, [perturbation_override(scenario_name, *run)]),
-                         end_s)
-            for name, run in SENSITIVITY_RUNS.items()}
+    runs = {}
+    for name, run in SENSITIVITY_RUNS.items():
+        override = perturbation_override(scenario_name, *run)
+        runs[name] = select(simulate_log(scenario_name, end_s, [override]), end_s)
     own = openblas_core()
     for core in KERNEL_RUNS:
         if core != own:
@@ -249,7 +251,8 @@ def sensitivity(scenario_name: str, base: dict, end_s: float):
     for signal, expected in base.items():
         if signal == "t":
             continue
-        deviation = np.zeros(relative_deviation(expected, expected).shape)
+        columns = np.asarray(expected).reshape(len(expected), -1).shape[1]
+        deviation = np.zeros((len(expected), columns))
         for log in runs.values():
             # fault_active: the sensitivity run's own fault adds a column.
             actual = np.asarray(log[signal]).reshape(len(expected), -1)
@@ -315,10 +318,6 @@ class SignalCheck:
     quantum_steps_allowed: int = 0
     # Bit for bit equal to the fixture.
     identical: bool = False
-
-    @property
-    def ok(self) -> bool:
-        return self.worst <= 1.0 and self.quantum_steps <= self.quantum_steps_allowed
 
 
 def allowance(golden: dict, signal: str) -> np.ndarray:
