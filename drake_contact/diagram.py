@@ -1,7 +1,7 @@
 """Builds the simulation diagram of one scenario: the contact station.
 
     controller --joint_torque_commanded--> [safety_supervisor] --> torque_saturation
-      --> [drive faults] --> motors --> plant.actuation
+      --> [drive faults] --> motors --> [dac] --> plant.actuation
     plant.state --> tip_kinematics --tip_state--> wall --force_on_tip--+
     plant.state --> joint_friction ------------------------------------+--> adder
     adder (J^T F_wall + tau_friction) --> plant.applied_generalized_force
@@ -10,7 +10,13 @@
     estimator, dsp (MeasuredSignals) --> controller, identifiers
     [bracketed]: only when the scenario has ``safety.enabled`` or ``faults``
     (drake_contact.faults: sensor faults sit in the DSP, encoder faults
-    before the estimator, environment faults before the wall)
+    before the estimator, environment faults before the wall), and the dac
+    (the torque held between samples) when the plant steps finer than 1 ms
+
+Timing (plant/arm.py): at each 1 ms sample t_n the plant's step and every
+discrete update are computed from the one Context at t_n, so every sampled
+system reads what the sensing computes from the plant's state at t_n, and the
+torque it computes from that acts from t_n.
 
 :func:`MakeContactDiagram` returns a :class:`ContactStation`: a Drake Diagram
 whose exported output ports are its signals, each documented in
@@ -25,7 +31,8 @@ import numpy as np
 from pydrake.common import RandomGenerator
 from pydrake.systems.framework import Diagram, DiagramBuilder, PortDataType
 from pydrake.systems.primitives import (
-    Adder, ConstantVectorSource, MatrixGain, Multiplexer, RandomSource, ZeroOrderHold)
+    Adder, ConstantVectorSource, MatrixGain, Multiplexer, RandomSource, SymbolicVectorSystem)
+from pydrake.symbolic import Variable, floor, if_then_else
 
 from drake_contact.control.force_reference import ForceReference
 from drake_contact.control.safety_supervisor import (
@@ -37,7 +44,8 @@ from drake_contact.measured import MeasuredSignals
 from drake_contact.plant.arm import CONTROL_PERIOD, AddArmPlant, MakeArmModel
 from drake_contact.plant.compliant_wall import CompliantWall
 from drake_contact.plant.joint_physics import (
-    AddEncoders, AddJointFriction, AddTorqueSaturation, check_friction_stability)
+    AddEncoders, AddJointFriction, AddTorqueSaturation, check_friction_stability,
+    encoder_reading)
 from drake_contact.plant.tip_kinematics import TipKinematics
 from drake_contact.plugins import ContactDetector, MakeController
 from drake_contact.scenario import Scenario
@@ -89,28 +97,18 @@ class ContactStation(Diagram):
         self.signals = signals
 
 
-def LatchMeasuredSignals(builder, measured: MeasuredSignals, *, prefix="dsp_sample"):
-    """The DSP's sample of every measured signal, as the sampled systems
-    (controllers, supervisor, detector) read it: each port through a
-    ``ZeroOrderHold`` at 1 kHz, named ``<prefix>_<signal>``. Returns the
-    held ports as a MeasuredSignals.
-
-    Why: at an event time the plant steps in the unrestricted phase, with
-    the sampled systems, and the sensing's discrete systems (the estimator's
-    differences and filters, the DSP's filters) update after it, from the
-    state it reached. A sampled system that read a filter directly at the
-    next sample would see its state already advanced by the very input it
-    reads: a backward difference reads 0 (joints 1 and 2's velocities did,
-    until this latch) and a filter H reads z (H - D) + D. The hold stores
-    each filter's output as computed in its own update, so the sampled
-    systems read exactly the DSP's value for the arm's current state."""
-    held = {}
-    for name, port in measured.items():
-        hold = builder.AddNamedSystem(f"{prefix}_{name}",
-                                      ZeroOrderHold(CONTROL_PERIOD, port.size()))
-        builder.Connect(port, hold.get_input_port())
-        held[name] = hold.get_output_port()
-    return MeasuredSignals(**held)
+def SampleHold(period_s, size, time_step):
+    """The DAC: a vector input passed through at each 1 kHz sample instant
+    and held from there until the next, for a plant that steps ``time_step``
+    < ``period_s``. A ``SymbolicVectorSystem`` updated at the plant's step
+    (so its events fall with the plant's), in C++."""
+    t = Variable("t")
+    u = [Variable(f"u{i}") for i in range(size)]
+    held = [Variable(f"held{i}") for i in range(size)]
+    at_sample = abs(t - floor(t / period_s + 0.5) * period_s) <= 1e-9
+    passed = [if_then_else(at_sample, a, b) for a, b in zip(u, held)]
+    return SymbolicVectorSystem(time=t, state=held, input=u, dynamics=passed, output=passed,
+                                time_period=time_step)
 
 
 def _add_controller(builder, scenario, plant, measured: MeasuredSignals):
@@ -258,7 +256,9 @@ def MakeContactDiagram(scenario: Scenario) -> ContactStation:
 
     encoders = AddEncoders(builder, scenario.encoders, scenario.arm.initial_positions)
     builder.Connect(state_port, encoders.GetInputPort("plant_state"))
-    estimator = AddKinematicEstimator(builder, MakeArmModel(), scenario.estimator)
+    estimator = AddKinematicEstimator(
+        builder, MakeArmModel(), scenario.estimator,
+        encoder_reading(scenario.encoders, scenario.arm.initial_positions))
     counted = encoders.GetOutputPort("joint_positions_measured")
     if faults.clock is not None:
         counted, active = ChainFaults(
@@ -285,20 +285,14 @@ def MakeContactDiagram(scenario: Scenario) -> ContactStation:
         **{name: estimator.GetOutputPort(name) for name in (
             "tip_pose", "tip_velocity", "tip_acceleration", "joint_positions",
             "joint_velocities", "tip_velocity_raw", "tip_acceleration_raw")})
-    unlatched = measured
-    if scenario.simulation.sample_hold:
-        measured = LatchMeasuredSignals(builder, measured)
     controller_system, controller = _add_controller(builder, scenario, plant, measured)
     torque = controller["joint_torque_commanded"]
     identifiers = None
     if scenario.identifiers:
         identifiers = AddIdentifiers(builder, scenario)
-        for name, port in unlatched.items():
+        for name, port in measured.items():
             if identifiers.HasInputPort(name):
                 builder.Connect(port, identifiers.GetInputPort(name))
-        for name, port in measured.items():  # the held signals (sample_hold)
-            if identifiers.HasInputPort(f"{name}_held"):
-                builder.Connect(port, identifiers.GetInputPort(f"{name}_held"))
         builder.Connect(controller["contact_info"], identifiers.GetInputPort("contact_info"))
     if controller_system.HasInputPort("impedance_estimate"):
         source = scenario.controller.impedance_source_name()
@@ -326,7 +320,13 @@ def MakeContactDiagram(scenario: Scenario) -> ContactStation:
         drive, active = ChainFaults(builder, scenario.faults, "drive", drive, 3, faults.clock)
         faults.active |= active
     builder.Connect(drive, motors.get_input_port())
-    builder.Connect(motors.get_output_port(), plant.get_actuation_input_port())
+    applied = motors.get_output_port()
+    if scenario.arm.time_step < CONTROL_PERIOD:
+        # Between samples the plant steps with the torque of the last sample.
+        dac = builder.AddNamedSystem("dac", SampleHold(CONTROL_PERIOD, 3, scenario.arm.time_step))
+        builder.Connect(applied, dac.get_input_port())
+        applied = dac.get_output_port()
+    builder.Connect(applied, plant.get_actuation_input_port())
 
     signals = _Signals(builder)
     export = signals.export
@@ -353,7 +353,7 @@ def MakeContactDiagram(scenario: Scenario) -> ContactStation:
         export("safety_stop_reason", supervisor.GetOutputPort("safety_stop_reason"),
                "why the supervisor stopped the arm: " + ", ".join(
                    f"{k} {v}" for k, v in STOP_REASONS.items()))
-    export("joint_torque_applied", motors.get_output_port(),
+    export("joint_torque_applied", applied,
            "motor torque into the plant: saturated, times the motor scale (N m)")
     export("joint_friction_torque", friction.GetOutputPort("torque"),
            "friction torque on the joints (N m)")

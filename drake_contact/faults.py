@@ -272,7 +272,9 @@ def FaultClock(threshold_n=CONTACT_CLOCK_FORCE_N):
 
     A ``SymbolicVectorSystem`` sampled every 1 ms. Input ``contact_force``
     (1, the wall's true normal force, N); output ``contact_time`` (1): the
-    first sample time with a force > ``threshold_n`` (s), -1 before it.
+    first sample time t_n with a force > ``threshold_n`` (s), from the next
+    sample on (a state, as the wall's force feeds back through the faults
+    it starts), -1 before it.
     The thesis's controllers switch to contact at 5 N of *measured* force,
     so this is within a few ms of their switch, but the same for every
     controller. Its state holds

@@ -182,17 +182,6 @@ class SimulationConfig:
     force_limit: float = 500.0
     # Steady-state metrics average over this final window (s).
     settle_window: float = 0.5
-    # The sampled systems (controllers, supervisor, contact detector,
-    # identifiers) read every measured signal through a 1 kHz hold, the
-    # DSP's sample (diagram.LatchMeasuredSignals): each reads exactly the
-    # DSP's value for the arm's current state. false (every bundled scenario
-    # and result so far) reads the sensing's discrete systems after their
-    # own update at the same sample: joints 1 and 2's velocities read 0 (so
-    # their friction compensation and Coriolis terms never act), the raw
-    # differences carry only q3's part, and a filter H reads as z (H - D) + D.
-    # A known defect, kept as the default until the reproduction is
-    # re-validated with the hold (README, "Known defects").
-    sample_hold: bool = False
 
     def validate(self, prefix="simulation"):
         if not (np.isfinite(self.duration) and self.duration > 0):
@@ -341,6 +330,11 @@ def scenario_from_data(data: dict, *, source="scenario") -> Scenario:
     """Checks keys and types of a plain mapping (e.g. from ``yaml.safe_load``:
     a float field given as the string ``"6.2e4"`` is read as YAML 1.2 would),
     then loads and validates it."""
+    simulation = data.get("simulation")
+    if isinstance(simulation, dict) and "sample_hold" in simulation:
+        raise ScenarioError(
+            "simulation.sample_hold is gone: every sampled system now reads the sample taken "
+            "at t_n (the thesis's timing, the only one); delete the line")
     _check_schema(Scenario, data, prefix="")
     # A plug-in's options are free-form (Drake's typed YAML has no "any"):
     # they bypass the typed load and are checked by _check_options.

@@ -44,7 +44,7 @@ BAD_INPUTS = [
     (["--set", "environment.stiffness=0"], "environment.stiffness = 0.0 is out of range"),
     (["--set", "environment.damping=-2"], "environment.damping = -2.0 is out of range"),
     (["--set", "environment.mass=-1"], "environment.mass = -1.0 is out of range"),
-    (["--set", "arm.time_step=0.0007"], "arm.time_step = 0.0007 does not divide"),
+    (["--set", "arm.time_step=0.0007"], "arm.time_step = 0.0007 is out of range: must be 0.001 / 2**k s"),
     (["--set", "environment.stifness=1"], "environment.stifness is not a scenario key"),
     (["--set", "controller.name=magic"], "controller.name = 'magic' is unknown"),
     (["--set", "nokey"], "--set 'nokey' is malformed"),

@@ -12,7 +12,7 @@ from drake_contact.plant.tip_kinematics import CalcTipPoseAndJacobian
 @pytest.fixture(scope="module")
 def estimator():
     builder = DiagramBuilder()
-    ports = AddKinematicEstimator(builder, MakeArmModel(), EstimatorConfig())
+    ports = AddKinematicEstimator(builder, MakeArmModel(), EstimatorConfig(), THESIS_Q0)
     builder.ExportInput(ports.GetInputPort("joint_positions_measured"), "q")
     for name in ("tip_pose", "tip_velocity", "tip_acceleration", "joint_positions",
                  "joint_velocities"):

@@ -205,14 +205,16 @@ def test_lugre_in_cpp_matches_the_former_numpy_law(levels, inertia):
         qdot = rng.normal(0, 10.0 ** rng.uniform(-8, 0), 3) * (rng.random(3) < 0.8)
         friction.GetInputPort("plant_state").FixValue(
             context, np.concatenate([rng.normal(size=3), qdot]))
-        z = context.get_discrete_state_vector().value().copy()  # the system's own z
-        torque, z_next = reference_lugre_step(levels, sigma0, sigma1, z, qdot, 1e-3)
-        np.testing.assert_array_equal(
-            friction.GetOutputPort("torque").Eval(context), torque, err_msg=f"step {n}")
-        context.SetDiscreteState(friction.EvalUniquePeriodicDiscreteUpdate(context)
-                                 .get_vector().value().copy())
+        # The state is z one step ago; the update advances it with this
+        # velocity, and the torque is the law at the advanced z.
+        z = context.get_discrete_state_vector().value().copy()
+        advanced = friction.EvalUniquePeriodicDiscreteUpdate(context).get_vector().value().copy()
+        _, z_next = reference_lugre_step(levels, sigma0, sigma1, z, qdot, 1e-3)
         # One last bit of exp's ~1 result is 1e-16 of the sliding deflection
         # F_c / sigma0, the scale of z.
-        np.testing.assert_allclose(context.get_discrete_state_vector().value(), z_next,
-                                   rtol=0, atol=1e-14 * np.max(levels / sigma0),
-                                   err_msg=f"step {n}")
+        np.testing.assert_allclose(advanced, z_next, rtol=0,
+                                   atol=1e-14 * np.max(levels / sigma0), err_msg=f"step {n}")
+        torque, _ = reference_lugre_step(levels, sigma0, sigma1, advanced, qdot, 1e-3)
+        np.testing.assert_array_equal(
+            friction.GetOutputPort("torque").Eval(context), torque, err_msg=f"step {n}")
+        context.SetDiscreteState(advanced)

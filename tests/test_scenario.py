@@ -36,7 +36,7 @@ def test_a_path_or_a_name_both_work():
     ("environment.stiffness=-7e3", "environment.stiffness = -7000.0 is out of range"),
     ("environment.damping=-1", "environment.damping = -1.0 is out of range: must be >= 0 N s/m"),
     ("environment.mass=-0.5", "environment.mass = -0.5 is out of range: must be >= 0 kg"),
-    ("arm.time_step=0.0003", "arm.time_step = 0.0003 does not divide the 1 ms control period"),
+    ("arm.time_step=0.0003", "arm.time_step = 0.0003 is out of range: must be 0.001 / 2**k s"),
     ("arm.time_step=0.002", "arm.time_step = 0.002 is out of range: must be in (0, 0.001] s"),
     ("environment.stifness=3", "environment.stifness is not a scenario key"),
     ("bogus=1", "bogus is not a scenario key"),

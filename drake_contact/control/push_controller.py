@@ -8,7 +8,8 @@ task-space PD, mapped to joints by the transpose Jacobian,
                    K_y (y_d - y) - D_y ydot,
                    K_phi (phi_d - phi) - D_phi phidot ],
 
-sampled every 1 ms (torque held between samples). It reads the true tip state
+sampled every 1 ms (torque computed from the sample at t_n, acting from t_n,
+held between samples). It reads the true tip state
 and J from the plant model: it is a test harness for the plant and the wall,
 not a controller under study.
 """
@@ -20,7 +21,6 @@ import pydrake.symbolic as sym
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import SymbolicVectorSystem
 
-from drake_contact.plant.arm import CONTROL_PERIOD
 from drake_contact.errors import ScenarioError
 from drake_contact.plant.planar_arm import tip_jacobian, tip_pose
 from drake_contact.plant.tip_kinematics import check_closed_forms
@@ -60,7 +60,9 @@ class PushConfig:
 
 class ConstantForcePushController(Diagram):
     """Input: plant_state (6, [q; v]). Output: joint_torque_commanded (3, N m),
-    updated every 1 ms (discrete state, held between samples).
+    the law of the state read at each 1 ms sample (a direct function of
+    the input; the station holds it between samples when the plant steps
+    finer).
 
     A Drake ``SymbolicVectorSystem`` (``law``): the closed-form kinematics of
     the arm (plant/planar_arm.py) evaluated in C++, no Python per step;
@@ -73,7 +75,6 @@ class ConstantForcePushController(Diagram):
         c = config
         t = sym.Variable("t")
         state = sym.MakeVectorVariable(6, "x")
-        torque = sym.MakeVectorVariable(3, "tau")
         q, v = state[:3], state[3:]
         _, y, phi = tip_pose(q, sin=sym.sin, cos=sym.cos)
         J = tip_jacobian(q, sin=sym.sin, cos=sym.cos)
@@ -82,12 +83,11 @@ class ConstantForcePushController(Diagram):
         wrench = [force - c.damping_x * xdot,
                   c.stiffness_y * (c.y_desired - y) - c.damping_y * ydot,
                   c.stiffness_phi * (c.phi_desired - phi) - c.damping_phi * phidot]
-        update = [J[0][j] * wrench[0] + J[1][j] * wrench[1] + J[2][j] * wrench[2]
+        torque = [J[0][j] * wrench[0] + J[1][j] * wrench[1] + J[2][j] * wrench[2]
                   for j in range(3)]
         builder = DiagramBuilder()
         law = builder.AddNamedSystem("law", SymbolicVectorSystem(
-            time=t, state=torque, input=state, dynamics=update, output=torque,
-            time_period=CONTROL_PERIOD))
+            time=t, input=state, output=torque))
         builder.ExportInput(law.get_input_port(), "plant_state")
         builder.ExportOutput(law.get_output_port(), "joint_torque_commanded")
         builder.BuildInto(self)

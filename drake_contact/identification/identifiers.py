@@ -49,7 +49,6 @@ import dataclasses as dc
 import numpy as np
 from scipy import signal
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import ZeroOrderHold
 
 from drake_contact.blocks import AddSubdiagram
 from drake_contact.errors import ScenarioError
@@ -265,9 +264,7 @@ def AddIdentifiers(builder: DiagramBuilder, scenario, *, name="identifiers"):
 
     Inputs: every :class:`~drake_contact.measured.MeasuredSignals` field by
     its name (``force``, ``force_raw``, ``tip_pose``, ...) and
-    ``contact_info`` (4, the hybrid controller's switch record); with
-    ``simulation.sample_hold`` also ``<field>_held``, the field held at
-    1 kHz, for the identifiers' direct reads. Outputs, per
+    ``contact_info`` (4, the hybrid controller's switch record). Outputs, per
     identifier ``<id>``: ``impedance_<id>`` (3: [M_e, B_e, K_e], kg, N s/m,
     N/m) and, for the neural network, ``force_estimate_<id>`` (N)."""
     seed = scenario.simulation.seed
@@ -275,22 +272,6 @@ def AddIdentifiers(builder: DiagramBuilder, scenario, *, name="identifiers"):
     def build(builder):
         inputs = {field: [] for field in _MEASURED_FIELDS} | {"contact_info": []}
         outputs = {}
-        # With simulation.sample_hold the identifiers (sampled systems) read
-        # every discrete signal held at 1 kHz (diagram.LatchMeasuredSignals):
-        # a measured signal at the input <field>_held, which the station feeds
-        # from its own holds, and a matched filter's output through a hold
-        # here (the filters themselves read the signals unheld).
-        hold = scenario.simulation.sample_hold
-        holds = {}  # a matched filter's output port -> its held output
-
-        def held(source):
-            if source not in holds:
-                zoh = builder.AddNamedSystem(f"sample_{source.get_system().get_name()}",
-                                             ZeroOrderHold(CONTROL_PERIOD, source.size()))
-                builder.Connect(source, zoh.get_input_port())
-                holds[source] = zoh.get_output_port()
-            return holds[source]
-
         filtered = {}   # (signals, chain) -> {input name: filtered port}, built once each
         adders = {"matched": _add_matched_signals, "raw_matched": _add_raw_matched_signals}
         for index, config in enumerate(scenario.identifiers):
@@ -308,9 +289,7 @@ def AddIdentifiers(builder: DiagramBuilder, scenario, *, name="identifiers"):
                 port_name = port.get_name()
                 field = sources.get(port_name, port_name)
                 if port_name in own:
-                    builder.Connect(held(own[port_name]) if hold else own[port_name], port)
-                elif field in _MEASURED_FIELDS and hold:
-                    inputs.setdefault(f"{field}_held", []).append(port)
+                    builder.Connect(own[port_name], port)
                 else:  # contact_info (a sampled system's output), or a measured signal
                     inputs[field].append(port)
             outputs[f"impedance_{config.name}"] = system.GetOutputPort("impedance")

@@ -2,7 +2,7 @@
 
 Link data (SPEC §2): lengths a_i, masses m_i, COM at a_i + S_ix from joint i,
 Izz about the COM. The plant is a discrete ``MultibodyPlant`` whose step
-must divide the 1 ms control period; it starts at the thesis's q0.
+is 1 ms / 2**k; it starts at the thesis's q0.
 """
 
 import dataclasses as dc
@@ -18,33 +18,32 @@ from drake_contact.resources import arm_urdf_path
 #: Controller sample period (s): every controller runs at 1 kHz.
 CONTROL_PERIOD = 1e-3
 
-#: Sampling: every controller and identifier is sampled at each whole
-#: millisecond t_n, in the same event as the plant step from t_n. Its law is
-#: an output computed from the inputs at t_n (the plant's state after its
-#: previous step, the sensors' and filters' states), held between samples,
-#: so the torque it computes acts from t_n on (the DSP's computation time is
-#: neglected); its own state (mode, integrators, weights) is updated at t_n
-#: from the same evaluation. One event time per millisecond. The first
-#: sample is at 1 ms: the estimator's differences and filters need one
-#: sample of history (before their first update their state is zero).
+#: Sampling, as the thesis's DSP did it (Appendix E, the 1 ms interrupt):
+#: at each whole millisecond t_n every sampled system (controllers,
+#: identifiers, supervisor, detector, force reference, plug-ins) and every
+#: discrete filter reads values computed from the plant's state at t_n, and
+#: the torque computed from them acts on the plant from t_n on (the DSP's
+#: computation time is neglected). In Drake terms: the plant steps as a
+#: periodic discrete update (``use_sampled_output_ports=False``) and every
+#: sampled system declares its update as a periodic discrete update at the
+#: same instants, so the Simulator computes all of them from one Context,
+#: the one at t_n, before it stores any. A law is an output computed from
+#: its inputs and its stored state, y_n = g(x_n, s_n), held between samples
+#: when the plant steps finer than 1 ms; its update stores s_(n+1) =
+#: f(x_n, s_n). The first sample is at 1 ms: the estimator's differences
+#: and filters take the pose at t = 0 as their first sample.
 FIRST_SAMPLE_S = CONTROL_PERIOD
 
 
 def DeclareSampledUpdate(system, update):
     """Declares ``update(context, discrete_values)`` on ``system`` at every
-    1 kHz sample instant, as Drake's periodic *unrestricted* update.
+    1 kHz sample instant, as a periodic discrete update.
 
-    Why unrestricted: at an event time Drake applies the discrete
-    MultibodyPlant's step before it computes the other systems' discrete
-    updates (a discrete update at t_n that reads the plant's state sees
-    x_(n+1); measured), while an unrestricted update sees the state at t_n,
-    the same values the plant's step read through the controller's output.
-    So the controller's stored state (mode, integral, weights) is the one its
-    output drove the arm with, and identifiers see what the controller saw.
-    """
-    system.DeclarePeriodicUnrestrictedUpdateEvent(
-        CONTROL_PERIOD, 0.0,
-        lambda context, state: update(context, state.get_mutable_discrete_state()))
+    The Simulator computes every discrete update due at t_n (the plant's
+    step, the filters', every sampled system's) from the same Context, the
+    state at t_n, and then stores them all: the update sees exactly what the
+    system's output showed, and what the plant's step read through it."""
+    system.DeclarePeriodicDiscreteUpdateEvent(CONTROL_PERIOD, 0.0, update)
     system._sampled_update = update
 
 
@@ -108,7 +107,7 @@ MODEL_NAME = "kiguchi_arm"
 class ArmConfig:
     """The simulated arm."""
 
-    # Plant time step (s); must divide the 1 ms control period.
+    # Plant time step (s): 1 ms / 2**k (1, 0.5, 0.25, ... ms).
     time_step: float = 1e-3
     # Initial joint angles q0 (rad).
     initial_positions: list[float] = dc.field(default_factory=lambda: list(THESIS_Q0))
@@ -126,10 +125,16 @@ class ArmConfig:
             raise ScenarioError(f"{prefix}.time_step = {h} is out of range: must be >= 1e-06 s "
                                 "(at most 1000 plant steps per control period)")
         ratio = CONTROL_PERIOD / h
-        if abs(ratio - round(ratio)) > 1e-9 * ratio:
+        n = int(round(ratio))
+        if abs(ratio - n) > 1e-9 * ratio or n & (n - 1) or h != CONTROL_PERIOD / n:
+            # Drake times a periodic event k * period: k h equals n * 1 ms to
+            # the bit for every k only when 1 ms / h is a power of two (for
+            # h = 0.1 ms, 18 % of the samples fall an ulp off the plant's
+            # step, and the sampled systems would read another state).
             raise ScenarioError(
-                f"{prefix}.time_step = {h} does not divide the 1 ms control period: "
-                "choose 0.001 / N s for a whole N (e.g. 0.001, 0.0005, 0.0001)")
+                f"{prefix}.time_step = {h} is out of range: must be 0.001 / 2**k s "
+                "(0.001, 0.0005, 0.00025, 0.000125, ...), so that the plant's steps fall "
+                "exactly on the 1 ms samples")
         scale = self.motor_torque_scale
         if len(scale) != 3 or not all(np.isfinite(x) and 0.5 <= x <= 2.0 for x in scale):
             raise ScenarioError(
@@ -149,7 +154,8 @@ def AddArmPlant(builder: DiagramBuilder, config: ArmConfig):
     to the plane of motion, so it produces no joint torque.
     """
     plant, scene_graph = AddMultibodyPlant(
-        MultibodyPlantConfig(time_step=config.time_step), builder)
+        MultibodyPlantConfig(time_step=config.time_step, use_sampled_output_ports=False),
+        builder)
     plant.set_name("plant")
     LoadArm(plant)
     plant.Finalize()

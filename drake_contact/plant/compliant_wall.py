@@ -102,10 +102,11 @@ class EnvironmentConfig:
                 f"must keep K_e > 0 over the run: > {-1 / duration:.4g} 1/s")
 
 
-# The wall's discrete state: free-surface displacement and velocity,
-# smoothed tip acceleration, previous tip x-velocity, and the time at which
-# K_e(t) holds over this step (the update time + h; 0 before the first
-# update, so that the all-zero default state starts at K_e(0) = K_e).
+# The wall's discrete state, as it was one plant step ago (see
+# contact_law_expressions): free-surface displacement and velocity, smoothed
+# tip acceleration, previous tip x-velocity, and the time at which K_e(t)
+# held (the step's start; 0 in the all-zero default state, so that it starts
+# at K_e(0) = K_e).
 STATE_NAMES = ("surface_displacement", "surface_velocity", "tip_acceleration_smoothed",
                "tip_velocity_previous", "stiffness_time")
 #: The contact law's outputs, in the order of its output vector.
@@ -189,9 +190,16 @@ def contact_law_expressions(config: EnvironmentConfig, h: float, *,
     """The wall as symbolic expressions: returns (t, state, tip, dynamics,
     outputs), the time, state (5) and input (6, tip_state; 7 with
     ``stiffness_scale_input``: then K_e(t) is multiplied by the 7th, for
-    injected faults) variables, the
-    state's update x[n+1] = dynamics(t, x[n], tip) and the output vector
+    injected faults) variables, the state's update and the output vector
     [force_on_tip (3), contact_force, penetration, true_impedance (3)].
+
+    Timing: like every discrete system of the station, the wall reads the
+    plant's state at t_n in the same event as the plant's step from t_n. Its
+    state S_(n-1) is the wall one step ago; the update stores S_n =
+    dynamics(t_n, S_(n-1), tip(t_n)) and the output is the contact law at
+    (S_n, tip(t_n)), S_n computed there by the same expressions. So the
+    force over the step from t_n is the law of the surface advanced to t_n
+    with the tip at t_n: a wall stepped right after the plant.
 
     Each expression does the IEEE operations of the former Python law in
     its order: constants are grouped into Python floats as the Python code
@@ -248,8 +256,12 @@ def contact_law_expressions(config: EnvironmentConfig, h: float, *,
     s_next, sd_next = (sym.if_then_else(contact, a, b) for a, b in zip(pushed, free))
     alpha = c.acceleration_smoothing
     acc_next = alpha * acc + (1.0 - alpha) * (vx - v_prev) / h
-    dynamics = [s_next, sd_next, acc_next, vx, t + h]
-    return t, state, tip, _expressions(dynamics), _expressions(outputs)
+    dynamics = _expressions([s_next, sd_next, acc_next, vx, t])
+    # The state holds the wall as it was one step ago; the output advances it
+    # to t_n from the tip state at t_n (the same expressions as the update).
+    advanced = {variable: value for variable, value in zip(state, dynamics)}
+    outputs = np.array([value.Substitute(advanced) for value in _expressions(outputs)])
+    return t, state, tip, dynamics, outputs
 
 
 def _expressions(values):

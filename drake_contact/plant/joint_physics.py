@@ -147,7 +147,7 @@ class LuGreFriction(Diagram):
     plant's step.
 
     Input port: plant_state (6, [q; v]). Output port: torque (3, N m).
-    State (discrete, 3): bristle deflections z (rad).
+    State (discrete, 3): bristle deflections z (rad), one plant step ago.
 
     How it is computed: one ``SymbolicVectorSystem`` (``law``) that Drake
     evaluates in C++, with no Python per step: the torque, read by the plant
@@ -189,6 +189,14 @@ class LuGreFriction(Diagram):
             else:
                 torque.append(-(sigma0 * z[i] + sigma1 * 0.0))
                 update.append(sym.Expression(0.0))
+        # The state is z one step ago: the update stores z_n = update(z_(n-1),
+        # qdot_n) from the plant's state at t_n, and the torque over the step
+        # from t_n is the law at (z_n, qdot_n), z_n computed there by the same
+        # expressions (the bristles advanced with the velocity they move at).
+        update = [e if isinstance(e, sym.Expression) else sym.Expression(e) for e in update]
+        advanced = dict(zip(z, update))
+        torque = [e.Substitute(advanced) if isinstance(e, sym.Expression) else e
+                  for e in torque]
         builder = DiagramBuilder()
         law = builder.AddNamedSystem("law", SymbolicVectorSystem(
             state=z, input=state, dynamics=update, output=torque, time_period=h))
@@ -234,6 +242,15 @@ def AddTorqueSaturation(builder: DiagramBuilder, limits, *, name="torque_saturat
     return builder.AddNamedSystem(name, Saturation(-limits, limits))
 
 
+def encoder_reading(config: EncoderConfig, zero_positions):
+    """What encoders zeroed at ``zero_positions`` (q0) read with the arm at
+    q0 (rad): q0, half a count higher with ``config.midpoint``."""
+    reading = np.asarray(zero_positions, dtype=float).copy()
+    if config.midpoint:
+        reading += [np.pi / c if c > 0 else 0.0 for c in config.counts_per_revolution]
+    return reading
+
+
 def AddEncoders(builder: DiagramBuilder, config: EncoderConfig, zero_positions, *,
                 name="encoders"):
     """Adds incremental encoders zeroed at ``zero_positions`` (q0), reading
@@ -246,9 +263,7 @@ def AddEncoders(builder: DiagramBuilder, config: EncoderConfig, zero_positions, 
     ``config.midpoint`` the others read half a count higher."""
     counts = [int(c) if c > 0 else 2**30 for c in config.counts_per_revolution]
     q0 = np.asarray(zero_positions, dtype=float)
-    reading = q0.copy()
-    if config.midpoint:
-        reading += [np.pi / c if c > 0 else 0.0 for c in config.counts_per_revolution]
+    reading = encoder_reading(config, q0)
 
     def build(inner):
         shift = inner.AddNamedSystem(

@@ -8,7 +8,8 @@ From the quantized encoder angles q_m:
 3. velocity = F((x_hat[n] - x_hat[n-1]) / T), acceleration = F of the backward
    difference of the unfiltered velocity; F is the 35 Hz filter (SPEC §4);
 4. joint velocities for the controllers' dynamic model: backward differences
-   of q_hat, joint 3's through F (as the thesis's code; joints 1-2 unfiltered).
+   of the encoder readings, joint 3's through F once (Appendix E's u1v, u2v
+   and u3vf; joints 1-2 unfiltered).
 
 Controllers and identifiers read these outputs, never the true state.
 Filters and differences are Drake ``LinearSystem``s and the forward
@@ -78,8 +79,9 @@ class ForwardKinematics(Diagram):
 def _joint_filters(b, a, period):
     """One LinearSystem: input q_m (3); outputs [q_hat (3), qdot_hat (3)].
 
-    q_hat = (q1, q2, F q3); qdot_hat = ((1 - z^-1)/T) q_hat with joint 3's
-    difference also through F."""
+    q_hat = (q1, q2, F q3); qdot_hat = ((1 - z^-1)/T) q_m, joint 3's
+    through F: Appendix E's u1v, u2v (raw backward differences) and u3vf =
+    F35 of the raw u3's difference (not of the filtered u3f)."""
     diff = np.array([1.0, -1.0]) / period
     channels = [
         ([1.0], [1.0]),                                        # q1
@@ -87,7 +89,7 @@ def _joint_filters(b, a, period):
         (b, a),                                                # F q3
         (diff, [1.0, 0.0]),                                    # q1 diff
         (diff, [1.0, 0.0]),                                    # q2 diff
-        (np.polymul(np.polymul(b, diff), b), np.polymul(np.polymul(a, [1.0, 0.0]), a)),
+        (np.polymul(b, diff), np.polymul(a, [1.0, 0.0])),      # F q3 diff
     ]
     inputs = [0, 1, 2, 0, 1, 2]
     blocks = [signal.tf2ss(num, den) for num, den in channels]
@@ -107,19 +109,36 @@ def _joint_filters(b, a, period):
     return LinearSystem(A, B, C, D, period)
 
 
-def AddKinematicEstimator(builder: DiagramBuilder, plant_model, config: EstimatorConfig, *,
-                          name="estimator"):
+def _start_at_rest(system: LinearSystem, u0):
+    """Sets ``system``'s default state to its steady state for the constant
+    input ``u0`` (its history as if the input had always been u0)."""
+    A, B = system.A(), system.B()
+    system.configure_default_state(np.linalg.solve(np.eye(A.shape[0]) - A, B @ np.asarray(u0)))
+
+
+def AddKinematicEstimator(builder: DiagramBuilder, plant_model, config: EstimatorConfig,
+                          rest_reading, *, name="estimator"):
     """Adds the estimator as the sub-diagram ``name``; returns it. Ports:
     ``joint_positions_measured`` (input, 3, rad) and outputs ``tip_pose``
     (3), ``tip_velocity`` (3), ``tip_acceleration`` (3), ``joint_positions``
     (3: q_hat), ``joint_velocities`` (3), and the unfiltered differences
-    ``tip_velocity_raw``, ``tip_acceleration_raw`` (3)."""
+    ``tip_velocity_raw``, ``tip_acceleration_raw`` (3).
+
+    Start-up: every filter and difference starts at rest at the encoders'
+    reading ``rest_reading`` (3, rad: q0 as the encoders read it): the
+    filtered q3 at q3, every velocity and acceleration at 0. (Appendix E
+    starts the previous encoder and tip readings at the pose but the filters'
+    histories at 0, which reads the orientation 0.78 rad off at the first
+    samples, an artefact of the program's start the thesis's runs begin
+    long after.)"""
     config.validate()
     b, a = butterworth_digital(config.cutoff_hz, 1.0 / CONTROL_PERIOD)
+    rest_pose = tip_pose(np.asarray(rest_reading, dtype=float))
 
     def build(builder):
         joints = builder.AddNamedSystem(f"{name}_joint_filters",
                                         _joint_filters(b, a, CONTROL_PERIOD))
+        _start_at_rest(joints, rest_reading)
         split = builder.AddNamedSystem(f"{name}_joint_split", Demultiplexer([3, 3]))
         fk = builder.AddNamedSystem(f"{name}_forward_kinematics", ForwardKinematics(plant_model))
         rates = builder.AddNamedSystem(
@@ -130,6 +149,8 @@ def AddKinematicEstimator(builder: DiagramBuilder, plant_model, config: Estimato
             f"{name}_tip_rates_raw",
             differencing_filter_system([1.0], [1.0], CONTROL_PERIOD, channels=3))
         raw_split = builder.AddNamedSystem(f"{name}_tip_rates_raw_split", Demultiplexer([3, 3]))
+        _start_at_rest(rates, rest_pose)
+        _start_at_rest(raw, rest_pose)
         builder.Connect(fk.GetOutputPort("tip_pose"), raw.get_input_port())
         builder.Connect(raw.get_output_port(), raw_split.get_input_port())
         builder.Connect(joints.get_output_port(), split.get_input_port())

@@ -11,34 +11,48 @@ DEFAULTS = dict(start_s=3.0, kp=0.2, ki=5.0, damping_x=60.0, stiffness_y=500.0, 
 
 
 class JacobianTransposePI(LeafSystem):
+    """The torque is an output computed from the inputs at each 1 ms sample
+    (as the DSP computed it and wrote the DAC in one interrupt); the update
+    stores the integral the same evaluation used."""
+
     def __init__(self, gains):
         super().__init__()
         self.g = gains
         for name, size in (("tip_pose", 3), ("tip_velocity", 3), ("joint_positions", 3),
                            ("force", 1), ("force_desired", 1)):
             self.DeclareVectorInputPort(name, size)
-        torque = self.DeclareDiscreteState(3)  # N m, held between samples
         self.DeclareDiscreteState(1)  # the integral of e (N s)
+        self.DeclareVectorOutputPort("joint_torque_commanded", 3, self.torque)
         self.DeclarePeriodicDiscreteUpdateEvent(1e-3, 0.0, self.update)
-        self.DeclareStateOutputPort("joint_torque_commanded", torque)
 
-    def update(self, context, discrete_state):
-        g, port = self.g, lambda name: self.GetInputPort(name).Eval(context)
-        (_, y, phi), (xd, yd, phid) = port("tip_pose"), port("tip_velocity")
-        f, f_d = port("force")[0], port("force_desired")[0]
-        integral = context.get_discrete_state(1).GetAtIndex(0)
+    def integral(self, context):
+        """The integral of e including this sample's error."""
+        g = self.g
+        f = self.GetInputPort("force").Eval(context)[0]
+        f_d = self.GetInputPort("force_desired").Eval(context)[0]
+        integral = context.get_discrete_state(0).GetAtIndex(0)
         if f > g["contact_n"]:
             integral = min(max(integral + (f_d - f) * 1e-3, -g["integral_limit_n"] / g["ki"]),
                            g["integral_limit_n"] / g["ki"])
-        if context.get_time() < g["start_s"]:
-            return  # at rest while the DSP tares and the estimator's filters settle
+        return integral
+
+    def torque(self, context, output):
+        if context.get_time() < self.g["start_s"]:
+            output.SetFromVector([0.0, 0.0, 0.0])  # at rest while the DSP tares
+            return
+        g, port = self.g, lambda name: self.GetInputPort(name).Eval(context)
+        (_, y, phi), (xd, yd, phid) = port("tip_pose"), port("tip_velocity")
+        f, f_d = port("force")[0], port("force_desired")[0]
+        integral = self.integral(context)
         wrench = [f_d + g["kp"] * (f_d - f) + g["ki"] * integral - g["damping_x"] * xd,
                   -g["stiffness_y"] * y - g["damping_y"] * yd,
                   -g["stiffness_phi"] * phi - g["damping_phi"] * phid]
         J = tip_jacobian(port("joint_positions"))
-        tau = [sum(J[i][j] * wrench[i] for i in range(3)) for j in range(3)]
-        discrete_state.set_value(0, tau)
-        discrete_state.set_value(1, [integral])
+        output.SetFromVector([sum(J[i][j] * wrench[i] for i in range(3)) for j in range(3)])
+
+    def update(self, context, discrete_state):
+        if context.get_time() >= self.g["start_s"]:
+            discrete_state.set_value(0, [self.integral(context)])
 
 
 def make_controller(options):
