@@ -46,6 +46,8 @@ def expected_terms(q, qdot):
 
 
 def friction(config, qdot):
+    if not config.friction_compensation:
+        return np.zeros(3)
     return np.array(config.model.friction_levels) * np.clip(qdot / config.model.friction_band, -1, 1)
 
 
@@ -164,10 +166,35 @@ def test_switches_at_the_threshold_and_back_when_contact_is_lost():
 def test_approach_schedule_holds_then_steps_one_mm_per_second():
     config = HybridControllerConfig()
     controller = HybridControlLaw(config)
-    assert controller._approach_target(4.999) == pytest.approx(0.454)
-    assert controller._approach_target(5.0) == pytest.approx(0.456)
-    assert controller._approach_target(6.5) == pytest.approx(0.457)
-    assert controller._approach_target(8.0) == pytest.approx(0.459)
+    assert controller._approach_target(4.999, 0.454) == pytest.approx(0.454)
+    assert controller._approach_target(5.0, 0.454) == pytest.approx(0.456)
+    assert controller._approach_target(6.5, 0.456) == pytest.approx(0.457)
+    assert controller._approach_target(8.0, 0.458) == pytest.approx(0.459)
+
+
+def test_after_a_contact_loss_x_d_is_kept_one_step_period_then_restarts():
+    """Appendix E: the loss sets N1 = 4000; x1d is unchanged until N1 = 5000
+    (1 s later) sets 0.456, then the ramp goes on from there."""
+    config = HybridControllerConfig()
+    controller = HybridController(config)
+    context = controller.CreateDefaultContext()
+    law = controller.GetSubsystemByName("law")
+    law_context = law.GetMyMutableContextFromRoot(context)
+
+    def x_d():  # the law's stored target (its internal state's 2nd entry)
+        return law_context.get_discrete_state(0).value()[18]
+
+    kw = dict(controller=controller, context=context)
+    context.SetTime(7.5)
+    sample(config, force=0.0, steps=7001, **kw)      # 7 s of approach: x_d = 0.458
+    assert x_d() == pytest.approx(0.458)
+    sample(config, force=5.1, **kw)                  # contact
+    _, mode, *_ = sample(config, force=-0.1, **kw)   # lost
+    assert mode == 0 and x_d() == pytest.approx(0.458)
+    sample(config, force=-0.1, steps=998, **kw)
+    assert x_d() == pytest.approx(0.458)             # kept for 1 s ...
+    sample(config, force=-0.1, steps=2, **kw)
+    assert x_d() == pytest.approx(0.456)             # ... then the ramp restarts
 
 
 def test_force_reference_square_wave_and_sine():

@@ -10,7 +10,9 @@ with x_d held at the start for ``hold_time_s``, then stepped to
 ``first_target_x`` and on by ``step_m`` every ``step_period_s``. When the
 filtered force exceeds ``contact_threshold_n`` (5 N) the controller switches
 to contact; if it drops below ``contact_loss_threshold_n`` (0 N) it returns
-to the approach, whose ramp restarts after one step period (the thesis's code).
+to the approach: x_d keeps its last value for one step period, then the ramp
+restarts at ``first_target_x`` (Appendix E: N1 = 4000 at the loss, x1d
+unchanged until N1 = 5000 sets 0.456).
 
 Contact, hybrid law (4.13-4.15), S = diag(1, 0, 0):
 
@@ -256,8 +258,13 @@ class HybridControllerConfig:
     # module doc).
     pose_joint_stiffness: list[float] = dc.field(default_factory=lambda: [0.0, 0.0, 0.0])
     pose_joint_damping: list[float] = dc.field(default_factory=lambda: [0.0, 0.0, 0.0])
-    # Compensate dry friction with the model's F_c (4.10, 4.13, 4.19).
-    friction_compensation: bool = True
+    # Compensate dry friction with the model's F_c sgn(qdot) (the text's
+    # 4.10, 4.13, 4.19; clipped within friction_band). Off: Appendix E as it
+    # ran adds sgn1*co1*0.9*9.8 and sgn2*co2*0.3 in the approach only, with
+    # co = |qdot|/0.002 set only while |qdot| <= 0.002 rad/s and 0 at the
+    # start, and a count-quantized velocity is never that small but 0: the
+    # code's compensation is exactly 0 throughout.
+    friction_compensation: bool = False
     # Switch to contact above this filtered force (N), back below the other.
     contact_threshold_n: float = 5.0
     contact_loss_threshold_n: float = 0.0
@@ -387,10 +394,10 @@ class HybridControlLaw(LeafSystem):
         # At t = 0 (before the first sample) the output is the held state.
         state.set_value(self._control.Eval(context))
 
-    def _approach_target(self, timer):
+    def _approach_target(self, timer, x_d):
         a = self._config.approach
         if timer < a.hold_time_s - 1e-9:
-            return a.start_x
+            return x_d  # start_x at the start; the last target after a loss
         return a.first_target_x + a.step_m * np.floor((timer - a.hold_time_s) / a.step_period_s
                                                       + 1e-9)
 
@@ -419,7 +426,7 @@ class HybridControlLaw(LeafSystem):
             mode = APPROACH
             timer = c.approach.hold_time_s - c.approach.step_period_s
         if mode == APPROACH:
-            x_d = self._approach_target(timer)
+            x_d = self._approach_target(timer, x_d)
             timer += CONTROL_PERIOD
 
         J, jdot_qdot, M, h = self._model.evaluate_rows(q, qdot)
