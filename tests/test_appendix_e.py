@@ -33,8 +33,7 @@ def test_variant_differs_from_the_base_only_where_appendix_e_does(material):
     variant = load_scenario(f"identify_{material}_appendix_e")
     networks = [i for i, config in enumerate(base.identifiers) if config.kind == "nn"]
     assert networks
-    expected = (["controller.hybrid.contact_threshold_n",
-                 "controller.hybrid.friction_compensation", "description",
+    expected = (["controller.hybrid.contact_threshold_n", "description",
                  "force_sensor.noise_scale"]
                 + [f"identifiers[{i}].nn.output_layer" for i in networks])
     assert sorted(_differences(dc.asdict(base), dc.asdict(variant))) == sorted(expected)

@@ -66,7 +66,7 @@ class Job:
 JOBS = [
     # Contact at 8.1 s; adaptation 64-65.5 s after it, so the first 5 s
     # window after it ends by 83.1 s; the first contact loss 77.5 s after
-    # contact (85.6 s): 85 s scores the one and ends before the other.
+    # contact (85.6 s): 85 s scores the adaptation and the drift before it.
     # Its baseline to the window only: the other 230 s of a hybrid-only run
     # were a quarter of the critical path, and no row reads them.
     Job("nn_small_lr", quick_duration_s=85.0, baseline_window=True),
@@ -448,12 +448,13 @@ def _nn_sine(runs):
 
 
 @_result("small learning rate 1e-5", "6.13-6.14", "lags at first, follows after a few minutes",
-         expected=False, expected_quick=True,
+         expected=False,
          deviation="it lags, then adapts 64 to 65.5 s after contact, as the thesis shows, but "
                    "loses contact 77.5 to 77.6 s after contact on every seed of 0-2, and 182 to "
                    "207 times to the end, with 5 s RMSEs up to 12 N (the thesis's weight update "
                    "has no bound: the weights keep drifting after adapting); --quick's 85 s run "
-                   "ends before the first loss")
+                   "ends before the first loss but sees the drift on seed 0 (1.54 N in the "
+                   "window 70-75 s after contact)")
 def _small_lr(runs):
     """Lags first, adapts after 30-200 s, and then keeps following: every
     5 s window from the adaptation to the end of the run under 1.5 N, and
