@@ -16,24 +16,25 @@ from drake_contact.app.bench import (
     load_bench_scenario, profile_scenario)
 from drake_contact.diagram import leaf_systems
 
-#: One worker runs this module, so its module fixture runs once (-n auto).
+#: One worker runs this module and its fixture is session-scoped, so the fixture
+#: runs once (-n auto; docs/testing.md, "Shared runs").
 pytestmark = pytest.mark.xdist_group("test_bench")
 
 #: Long enough for the contact switch to be near, short enough for CI.
 DURATION = 0.5
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def nn_scenario():
     return load_bench_scenario("nn_styrofoam", duration=DURATION)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def bench_result(nn_scenario):
     return bench(nn_scenario, name="nn_styrofoam")
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def profile(nn_scenario):
     return profile_scenario(nn_scenario, name="nn_styrofoam")
 

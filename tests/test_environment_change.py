@@ -16,7 +16,8 @@ from drake_contact.faults import ChainFaults, FaultClock, FaultConfig
 from drake_contact.identification.identifiers import IdentifierConfig
 from drake_contact.plant.compliant_wall import CompliantWall, EnvironmentConfig
 
-#: One worker runs this module, so its module fixture runs once (-n auto).
+#: One worker runs this module and its fixture is session-scoped, so the fixture
+#: runs once (-n auto; docs/testing.md, "Shared runs").
 pytestmark = pytest.mark.xdist_group("test_environment_change")
 
 DT = 1e-3  # the logs' sample period (s)
@@ -159,7 +160,7 @@ def test_true_stiffness_steps_for_good_after_contact(t):
 STEP_AFTER_S = 0.5
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def step_run():
     scenario = drake_contact.load_scenario(
         "identify_step", [f"faults=[{{kind: stiffness_step, start_from: contact, "

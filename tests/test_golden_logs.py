@@ -54,7 +54,7 @@ def test_golden_log(name):
     assert not problems, "\n".join(problems)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def guarded_run():
     return golden_log(GUARDED)
 

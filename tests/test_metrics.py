@@ -13,7 +13,8 @@ from drake_contact.app.metrics import (
 from drake_contact.identification.identifiers import IdentifierConfig
 from drake_contact.scenario import ScoringConfig
 
-#: One worker runs this module, so its module fixture runs once (-n auto).
+#: One worker runs this module and its fixture is session-scoped, so the fixture
+#: runs once (-n auto; docs/testing.md, "Shared runs").
 pytestmark = pytest.mark.xdist_group("test_metrics")
 
 DT = 1e-3  # the logs' sample period (s)
@@ -149,7 +150,7 @@ def test_identification_error_1s_is_none_when_the_log_ends_sooner():
 
 # One real run.
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def styrofoam_run():
     # The scenario's own 14 s: its switch is near 8.3 s, and a full 5 s
     # RMSE window after it (which ``stable`` needs) ends the run.

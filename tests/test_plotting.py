@@ -16,7 +16,8 @@ from drake_contact.app.plotting import (
     plot_sensor_figures, plot_signal, plot_tip_errors)
 from drake_contact.scenario import Scenario
 
-#: One worker runs this module, so its module fixture runs once (-n auto).
+#: One worker runs this module and its fixture is session-scoped, so the fixture
+#: runs once (-n auto; docs/testing.md, "Shared runs").
 pytestmark = pytest.mark.xdist_group("test_plotting")
 
 N = 50
@@ -159,7 +160,7 @@ IDENTIFY_PNGS = {
 }
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def identify_run(tmp_path_factory):
     from drake_contact.app.runner import run
     from drake_contact.scenario import load_scenario

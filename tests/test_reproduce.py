@@ -18,7 +18,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
-from conftest import needs_tool
+from conftest import ON_QUICK_REPRODUCTION, needs_tool
 from drake_contact.app import reproduce
 from drake_contact.app.reproduce import JOBS, RESULTS, score, write_report
 
@@ -30,24 +30,14 @@ def _status(seeds=(0,)):
     return {(name, seed): None for name in SCENARIOS for seed in seeds}
 
 
-@pytest.fixture(scope="module")
-def quick(tmp_path_factory):
-    out = tmp_path_factory.mktemp("reproduce")
-    result = subprocess.run(
-        [sys.executable, "-m", "drake_contact", "reproduce", "--quick", "--out", str(out),
-         "--seeds", "0"],
-        capture_output=True, text=True, timeout=600)
-    return out, result
-
-
 def _table_rows(markdown):
     lines = [line for line in markdown.splitlines() if line.startswith("| ")]
     return [re.split(r"(?<!\\)\|", line.strip())[1:-1] for line in lines[1:]]
 
 
-@pytest.mark.xdist_group("reproduce_quick")
-def test_quick_reproduction_fills_every_row_and_every_row_is_as_expected(quick):
-    out, result = quick
+@ON_QUICK_REPRODUCTION
+def test_quick_reproduction_fills_every_row_and_every_row_is_as_expected(quick_reproduction):
+    out, result = quick_reproduction
     assert result.returncode == 0, result.stdout + result.stderr
     assert "0 not as expected" in result.stdout
     rows = _table_rows((out / "report.md").read_text())
@@ -65,9 +55,9 @@ def test_quick_reproduction_fills_every_row_and_every_row_is_as_expected(quick):
     assert "Documented deviations" in report_html
 
 
-@pytest.mark.xdist_group("reproduce_quick")
-def test_quick_reproduction_writes_the_figures_and_embeds_them(quick):
-    out, _ = quick
+@ON_QUICK_REPRODUCTION
+def test_quick_reproduction_writes_the_figures_and_embeds_them(quick_reproduction):
+    out, _ = quick_reproduction
     expected = {
         "identify_styrofoam": ["fig4_2_switch.png", "fig6_1_identification.png",
                                "fig6_2_identification.png", "fig6_3_identification.png",

@@ -17,8 +17,12 @@ from drake_contact.sensing.force_sensor import AddForceSensor, ForceSensorConfig
 from drake_contact.app.runner import run
 from drake_contact.scenario import load_scenario
 
+#: One worker runs this module and its fixture is session-scoped, so the fixture
+#: runs once (-n auto; docs/testing.md, "Shared runs").
+pytestmark = pytest.mark.xdist_group("test_sensor_chain")
 
-@pytest.fixture(scope="module")
+
+@pytest.fixture(scope="session")
 def spectrum(tmp_path_factory):
     out = tmp_path_factory.mktemp("sensor_spectrum")
     return run(load_scenario("sensor_spectrum"), out), out

@@ -16,7 +16,8 @@ from matplotlib.figure import Figure
 from drake_contact.app.sweep import Task, load_sweep, run_sweep, sweeps_dir
 from drake_contact.app.sweep_figures import plot_heat_map
 
-#: One worker runs this module, so its module fixture runs once (-n auto).
+#: One worker runs this module and its fixture is session-scoped, so the fixture
+#: runs once (-n auto; docs/testing.md, "Shared runs").
 pytestmark = pytest.mark.xdist_group("test_sweep")
 
 #: push_constant rests through the tare and pushes from 2.1 s; 1e9 N/m makes
@@ -35,7 +36,7 @@ maps:
 """
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def small(tmp_path_factory):
     root = tmp_path_factory.mktemp("sweep")
     (root / "small.yaml").write_text(SMALL)

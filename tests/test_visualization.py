@@ -20,7 +20,8 @@ from drake_contact.app.runner import MakeRunDiagram, simulate_scenario
 from drake_contact.scenario import load_scenario
 from drake_contact.app.visualization import ContactVisualizer, ContactVisualizerParams, new_meshcat
 
-#: One worker runs this module, so its module fixture runs once (-n auto).
+#: One worker runs this module and its fixture is session-scoped, so the fixture
+#: runs once (-n auto; docs/testing.md, "Shared runs").
 pytestmark = pytest.mark.xdist_group("test_visualization")
 
 PARAMS = ContactVisualizerParams()
@@ -160,7 +161,7 @@ def test_no_visualizer_is_added_without_meshcat():
 
 # --- A recorded run.
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def recorded(tmp_path_factory):
     # Pushing from the start, push_constant touches at 0.046 s and settles at
     # about 17 N by 0.5 s.
