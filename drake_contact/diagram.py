@@ -423,9 +423,9 @@ def leaf_systems(diagram):
             yield system
 
 
-#: Each noise source's seed hashes this prefix and its name. (The prefix is
-#: the path the first release hashed, kept so that a scenario and seed keep
-#: the noise realization their published results were measured with.)
+#: Each noise source's seed hashes this prefix and its name. The prefix is
+#: part of the seed: changing it changes every scenario's noise realization,
+#: and with it every published result and golden log.
 _NOISE_KEY_PREFIX = "::run::station::"
 
 

@@ -7,7 +7,7 @@ Three diagrams are timed in one process, each over the same simulated time:
   input, no Python system at all. No run of this arm can be cheaper;
 * the **physics** (:func:`drake_contact.diagram.MakeFloorDiagram`): the
   plant with the wall, the joint friction and the tip kinematics (C++
-  symbolic systems since issue 13; they were three Python systems), a
+  symbolic systems), a
   constant torque and no sensors or controller: what any contact run of
   this arm costs;
 * the **scenario**: the full run (:func:`simulate_scenario`: station,

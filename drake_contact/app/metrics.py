@@ -61,7 +61,7 @@ from drake_contact.plant.arm import CONTROL_PERIOD
 from drake_contact.scenario import Scenario
 
 #: Identification settling bars: K_e within 5 % (RLS), 10 % (the neural
-#: identifier, issue 5).
+#: identifier).
 SETTLE_TOLERANCE = 0.05
 SETTLE_TOLERANCE_NN = 0.10
 

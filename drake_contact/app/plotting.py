@@ -302,7 +302,7 @@ def _save(fig, axes, path, *, legend=True, collect=False) -> Path:
     empty the figure (its lines and rendered canvas are not kept until the
     cyclic garbage collector comes by). ``collect``: run that collector now
     (about 0.1 s): a long run's figures are drawn one after another within
-    the run's peak memory (issue 13: a 600 s run under 300 MB)."""
+    the run's peak memory (a 600 s run stays under 300 MB)."""
     for ax in np.ravel(axes):
         ax.grid(True, which="both", alpha=0.3)
         if legend and ax.get_legend_handles_labels()[0]:

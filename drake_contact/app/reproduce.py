@@ -7,7 +7,7 @@ Each scenario runs once per seed (default seeds 0, 1 and 2) as its own
 ``drake-contact run`` process (``--jobs`` at a time, default one per core),
 writing ``DIR/<scenario>/seed_<s>/`` (logs, metrics, figures, ``run.log``);
 the identification runs of the first seed also record a Meshcat playback
-(``playback.html``). Then :data:`RESULTS`, the thesis's results of SPEC §8,
+(``playback.html``). Then :data:`RESULTS`, the thesis's results (chapter 6),
 are scored from the runs' ``metrics.json``, seed by seed: each result is a
 set of :class:`Bound` s on measured numbers, and a row is reproduced only
 when every seed meets every bound with the bound's margin (long runs are
@@ -211,7 +211,7 @@ class Result:
         return self.expected if not quick or self.expected_quick is None else self.expected_quick
 
 
-#: The thesis's results (SPEC §8), in its order: each scorer below registers
+#: The thesis's results (chapter 6), in its order: each scorer below registers
 #: itself with its claim (:func:`_result`), so definition order is report order.
 RESULTS: list[Result] = []
 

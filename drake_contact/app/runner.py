@@ -159,7 +159,7 @@ class SignalLoggers:
     ``.log_spool``) the array holds at most SPOOL_BUFFER_SAMPLES samples:
     :meth:`flush` appends them to one file per log key there, and
     :meth:`collect` returns a :class:`SpooledLog` reading those files. A run
-    of any length then holds a few MB of log (issue 13: a 600 s neural run
+    of any length then holds a few MB of log (a 600 s neural run stays
     under 300 MB resident)."""
 
     station: ContactStation

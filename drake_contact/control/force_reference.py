@@ -9,7 +9,7 @@ first level. The option ``hold_s`` (ours, for the ``adaptive_hybrid``
 scenario) holds the first level for that long after contact before the
 cycle starts (its clock then starts at 0).
 
-The option ``probe_amplitude_n`` (ours, issue 16) adds a small probing
+The option ``probe_amplitude_n`` (ours) adds a small probing
 signal in contact, for identification: a multisine over
 ``probe_frequencies_hz`` with Schroeder's phases (M. R. Schroeder, "Synthesis
 of low-peak-factor signals and binary sequences with low autocorrelation",
@@ -48,7 +48,7 @@ class ForceReferenceConfig:
     # Hold the first level (no sine) for this long after contact before the
     # cycle starts (s); 0 = the thesis's schedule.
     hold_s: float = 0.0
-    # Probing multisine in contact (ours, issue 16): its bound A (N; 0 = off)
+    # Probing multisine in contact (ours): its bound A (N; 0 = off)
     # and frequencies (Hz); see the module doc.
     probe_amplitude_n: float = 0.0
     probe_frequencies_hz: list[float] = dc.field(

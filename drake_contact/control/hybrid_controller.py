@@ -141,7 +141,7 @@ torque acts over (see arm.py, ``is_sample_time``). Reads measured signals only: 
 angles and velocities, and the DSP's filtered force. M, h, J, Jdot qdot and
 F_c come from the controller's own model of the arm (controller_model.py),
 which may be wrong. Jdot qdot is the true one (the thesis's code used a
-product linear in qdot; SPEC §7).
+product linear in qdot, Appendix E).
 """
 
 import dataclasses as dc

@@ -28,7 +28,7 @@ Signals an identifier reads (``signals``):
   chain and the 35 Hz filter, and xe', xe'' through the nominal force chain
   (:func:`nominal_force_chain`): Drake LinearSystems in front of the
   identifier.
-- ``raw_matched`` (ours, issue 16): the DSP's unfiltered force, and xe, xe',
+- ``raw_matched`` (ours): the DSP's unfiltered force, and xe, xe',
   xe'' (the unfiltered differences) each through the nominal model of the
   sensor's chain up to the DSP (:func:`nominal_force_chain` without its
   120 Hz stage). The model is matched as above, but the force's noise is
@@ -85,7 +85,7 @@ class IdentifierConfig:
     # The nominal force chain of the matched and raw_matched signals:
     # bilinear (its analog stages by Tustin's rule, for a force that varies
     # between samples) or zoh (held over each 1 ms sample, as the simulated
-    # sensor holds the wall's force: exact in simulation; ours, issue 16).
+    # sensor holds the wall's force: exact in simulation; ours).
     # See nominal_force_chain.
     chain_model: str = "bilinear"
     # Thesis figures it belongs to, e.g. ["6.1", "6.2"]: the first is the

@@ -29,7 +29,7 @@ says ("dummy values close to learned values"). B_e and M_e rest on the
 transient alone and depend on the initial weights. The thesis's form is the
 default.
 
-Self-scaling (ours, issue 16; ``normalization: running``): no per-material
+Self-scaling (ours; ``normalization: running``): no per-material
 constant. Each input is divided by the largest magnitude it has taken since
 the switch, s_i = max(floor_i, max |x_i|), and the output by the largest
 |f - f_s| so far, s_f, so u = x / s lies in [-1, 1] and

@@ -21,7 +21,7 @@ option ``force_offset`` adds a constant to the regressor, phi = (xe'', xe',
 xe, 1), theta = (M_e, B_e, K_e, f_0), which removes it. The thesis's form
 stays the default.
 
-The option ``stiffness_drift`` q (ours, issue 16) lets K_e change in time
+The option ``stiffness_drift`` q (ours) lets K_e change in time
 the way a Kalman filter does (L. Ljung and S. Gunnarsson, "Adaptation and
 tracking in system identification - a survey", Automatica 26(1):7-21,
 1990, section 3): K_e is modelled as a random walk whose step per sample
@@ -35,7 +35,7 @@ Unlike lambda < 1, which discounts every parameter and multiplies P by
 and at rest P_KK grows linearly, not exponentially.
 
 A random walk follows a drift, not a jump (a material change). The option
-``change_threshold_n`` (ours, issue 16) resets the covariance when the fit
+``change_threshold_n`` (ours) resets the covariance when the fit
 stops predicting the force, the covariance resetting of G. C. Goodwin and
 K. S. Sin, Adaptive Filtering, Prediction and Control, 1984, section 3.3
 (and K. J. Astrom and B. Wittenmark, Adaptive Control, 2nd ed., 1995,

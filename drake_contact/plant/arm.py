@@ -1,6 +1,6 @@
 """The 3-DOF planar direct-drive arm (thesis Appendix A-D), loaded from URDF.
 
-Link data (SPEC §2): lengths a_i, masses m_i, COM at a_i + S_ix from joint i,
+Link data (thesis Appendix A-D): lengths a_i, masses m_i, COM at a_i + S_ix from joint i,
 Izz about the COM. The plant is a discrete ``MultibodyPlant`` whose step
 is 1 ms / 2**k; it starts at the thesis's q0.
 """

@@ -8,7 +8,7 @@ formulas serve the controller's model (Python scalars, one callback) and
 the simulator's tip kinematics and the estimator's forward kinematics
 (``SymbolicVectorSystem``s, evaluated in C++ with no Python per step).
 
-Conventions (SPEC §2, thesis Appendix C): q = (theta_1, theta_2, theta_3),
+Conventions (thesis Appendices A-C): q = (theta_1, theta_2, theta_3),
 joints about z in the horizontal plane (gravity gives no joint torque);
 link i has length a_i, mass m_i, its COM at L_i = a_i + S_ix from joint i,
 and Izz_i about its COM. The tip is at the end of link 3 and phi = q1 + q2

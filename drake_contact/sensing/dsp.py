@@ -1,4 +1,4 @@
-"""The DSP's force input at 1 kHz (thesis chapter 3-4, SPEC §4).
+"""The DSP's force input at 1 kHz (thesis chapters 3-4).
 
     sensor voltage --[optional 2nd-order RC, analog]--> 16-bit ADC (+-10 V)
       --> x (-200 N/V) --> tare --> force_measured

@@ -6,7 +6,7 @@ From the quantized encoder angles q_m:
    coarse), q1 and q2 as read: q_hat = (q1_m, q2_m, F(q3_m));
 2. the tip pose x_hat = FK(q_hat) from the controller's model of the arm;
 3. velocity = F((x_hat[n] - x_hat[n-1]) / T), acceleration = F of the backward
-   difference of the unfiltered velocity; F is the 35 Hz filter (SPEC §4);
+   difference of the unfiltered velocity; F is the 35 Hz filter (Appendix E);
 4. joint velocities for the controllers' dynamic model: backward differences
    of the encoder readings, joint 3's through F once (Appendix E's u1v, u2v
    and u3vf; joints 1-2 unfiltered).

@@ -1,4 +1,4 @@
-"""The FS6-120A wrist force sensor (thesis chapter 3, SPEC §4), as analog.
+"""The FS6-120A wrist force sensor (thesis chapter 3), as analog.
 
 Signal chain per channel (we model the planar channels Fx, Fy, Tz; the DSP
 reads only Fx):
