@@ -41,7 +41,7 @@ from drake_contact.errors import ScenarioError
 from drake_contact.faults import ChainFaults, FaultClock
 from drake_contact.identification.identifiers import AddIdentifiers
 from drake_contact.measured import MeasuredSignals
-from drake_contact.plant.arm import CONTROL_PERIOD, AddArmPlant, MakeArmModel
+from drake_contact.plant.arm import CONTROL_PERIOD, TIME_TOLERANCE_S, AddArmPlant, MakeArmModel
 from drake_contact.plant.compliant_wall import CompliantWall
 from drake_contact.plant.joint_physics import (
     AddEncoders, AddJointFriction, AddTorqueSaturation, check_friction_stability,
@@ -105,7 +105,7 @@ def SampleHold(period_s, size, time_step):
     t = Variable("t")
     u = [Variable(f"u{i}") for i in range(size)]
     held = [Variable(f"held{i}") for i in range(size)]
-    at_sample = abs(t - floor(t / period_s + 0.5) * period_s) <= 1e-9
+    at_sample = abs(t - floor(t / period_s + 0.5) * period_s) <= TIME_TOLERANCE_S
     passed = [if_then_else(at_sample, a, b) for a, b in zip(u, held)]
     return SymbolicVectorSystem(time=t, state=held, input=u, dynamics=passed, output=passed,
                                 time_period=time_step)

@@ -60,8 +60,9 @@ from pydrake.systems.primitives import (
 from pydrake.common import RandomDistribution
 
 from drake_contact.blocks import AddSubdiagram
+from drake_contact.control.hybrid_controller import CONTACT_THRESHOLD_N
 from drake_contact.errors import ScenarioError
-from drake_contact.plant.arm import CONTROL_PERIOD
+from drake_contact.plant.arm import CONTROL_PERIOD, TIME_TOLERANCE_S
 
 #: Each kind: (signal it corrupts, what magnitude means and its allowed range).
 FAULT_KINDS = {
@@ -82,9 +83,6 @@ FAULT_KINDS = {
 }
 
 START_FROM = ("time", "contact")
-
-# Tolerance on sample instants (s), as is_sample_time's.
-_EPS = 1e-9
 
 
 @dc.dataclass
@@ -163,9 +161,9 @@ def _window(fault: FaultConfig, t, contact_time):
         t0 = fault.start_s
     else:
         t0 = if_then_else(contact_time >= 0.0, contact_time + fault.start_s, np.inf)
-    on = t >= t0 - _EPS
+    on = t >= t0 - TIME_TOLERANCE_S
     if math.isfinite(fault.duration_s):
-        on = logical_and(on, t < t0 + fault.duration_s - _EPS)
+        on = logical_and(on, t < t0 + fault.duration_s - TIME_TOLERANCE_S)
     return on, t0
 
 
@@ -211,18 +209,18 @@ def _fault_law(fault: FaultConfig, size: int, counts_per_revolution=None):
         lsb = 2 * np.pi / counts_per_revolution[j]
         done = sym_min(sym_max((t - t0) / fault.duration_s, 0.0), 1.0)
         # Counts missed so far; 0 before the start (t0 may be inf).
-        missed = if_then_else(t >= t0 - _EPS, floor(m * done + 0.5), 0.0)
+        missed = if_then_else(t >= t0 - TIME_TOLERANCE_S, floor(m * done + 0.5), 0.0)
         y[j] = u[j] - missed * lsb
     elif kind == "surface_retreat":
         # The wall sees the tip moved back by the retreat: x - shift.
         y[0] = u[0] - if_then_else(on, m, 0.0)
     elif kind == "surface_motion":
-        travelled = if_then_else(t >= t0 - _EPS, sym_min(t - t0, fault.duration_s), 0.0)
+        travelled = if_then_else(t >= t0 - TIME_TOLERANCE_S, sym_min(t - t0, fault.duration_s), 0.0)
         y[0] = u[0] - m * sym_max(travelled, 0.0)
     elif kind == "stiffness_step":
         y = [if_then_else(on, m * u[0], u[0])]
     elif kind == "stiffness_ramp":
-        done = if_then_else(t >= t0 - _EPS,
+        done = if_then_else(t >= t0 - TIME_TOLERANCE_S,
                             sym_min(sym_max((t - t0) / fault.duration_s, 0.0), 1.0), 0.0)
         y = [u[0] * (1.0 + (m - 1.0) * done)]
     elif kind == "torque_limit":
@@ -264,7 +262,7 @@ def AddFault(builder: DiagramBuilder, fault: FaultConfig, size: int, name: str, 
 
 #: The true force (N) that starts a fault's contact clock: the thesis's
 #: contact switch level, read from the truth.
-CONTACT_CLOCK_FORCE_N = 5.0
+CONTACT_CLOCK_FORCE_N = CONTACT_THRESHOLD_N
 
 
 def FaultClock(threshold_n=CONTACT_CLOCK_FORCE_N):

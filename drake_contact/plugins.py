@@ -43,6 +43,7 @@ from pydrake.systems.framework import (
     BasicVector, Diagram, DiagramBuilder, LeafSystem, PortDataType, System)
 from pydrake.systems.primitives import Demultiplexer
 
+from drake_contact.control.hybrid_controller import CONTACT_THRESHOLD_N
 from drake_contact.errors import ScenarioError
 from drake_contact.plant.arm import DeclareSampledUpdate, is_sample_time
 
@@ -178,7 +179,7 @@ class ContactDetectorConfig:
 
     # Contact from above this filtered force (N), lost below the other (N):
     # the hybrid controller's switch (thesis section 4.4).
-    contact_threshold_n: float = 5.0
+    contact_threshold_n: float = CONTACT_THRESHOLD_N
     contact_loss_threshold_n: float = 0.0
 
 

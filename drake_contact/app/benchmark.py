@@ -56,6 +56,7 @@ import yaml
 
 from drake_contact.app.sweep import finished_metrics, run_points
 from drake_contact.errors import ScenarioError
+from drake_contact.plant.arm import TIME_TOLERANCE_S
 from drake_contact.plugins import installed_controllers, installed_identifiers
 from drake_contact.resources import scenarios_dir
 from drake_contact.scenario import yaml_load
@@ -364,8 +365,8 @@ def score_run(run: Run, run_dir: Path, suite: Suite) -> dict:
     windows = metrics.get("force_rmse_windows_n") or []
     width = 5.0
     inside = [w for k, w in enumerate(windows)
-              if k * width >= suite.window_s[0] - 1e-9
-              and (k + 1) * width <= suite.window_s[1] + 1e-9]
+              if k * width >= suite.window_s[0] - TIME_TOLERANCE_S
+              and (k + 1) * width <= suite.window_s[1] + TIME_TOLERANCE_S]
     row["worst_window_rmse_n"] = max(inside) if inside else None
     return row
 

@@ -32,7 +32,7 @@ data would allow it.
 import numpy as np
 
 from drake_contact.app.spectra import RATE_HZ, welch_psd, windows
-from drake_contact.plant.arm import CONTROL_PERIOD
+from drake_contact.plant.arm import CONTROL_PERIOD, TIME_TOLERANCE_S
 
 #: Samples of rest noise and of contact needed for a bound.
 MIN_REST_SAMPLES = 1024
@@ -51,9 +51,9 @@ def contact_window(log, t_contact, until=None):
     sample out of contact (true force 0) after it, or the end (or, with
     ``until``, the samples before that long after the switch)."""
     t = log["t"]
-    after = t >= t_contact - 1e-9
+    after = t >= t_contact - TIME_TOLERANCE_S
     if until is not None:
-        after &= t < t_contact + until - 1e-9
+        after &= t < t_contact + until - TIME_TOLERANCE_S
     touching = np.asarray(log["contact_force_true"]).ravel() > 0
     lost = after & ~touching
     # The switch fires on the filtered force, some ms into the contact.

@@ -57,7 +57,7 @@ from drake_contact.app.identifiability import identifiability_bound, noise_psd
 from drake_contact.app.spectra import sensor_metrics
 from drake_contact.control.safety_supervisor import (
     CLAMPED, REFLEX, SAFETY_STATES, STOP_REASONS)
-from drake_contact.plant.arm import CONTROL_PERIOD
+from drake_contact.plant.arm import CONTROL_PERIOD, RATIO_TOLERANCE, TIME_TOLERANCE_S
 from drake_contact.scenario import Scenario
 
 #: Identification settling bars: K_e within 5 % (RLS), 10 % (the neural
@@ -207,7 +207,7 @@ def level_metrics(log: dict, t_contact: float, scoring) -> dict:
     sums = np.concatenate([[0.0], np.cumsum(force)])
     worst, count = None, 0
     for start, stop in zip(changes[:-1], changes[1:]):
-        first = int(np.searchsorted(t, t[start] + scoring.level_settle_s - 1e-9))
+        first = int(np.searchsorted(t, t[start] + scoring.level_settle_s - TIME_TOLERANCE_S))
         if stop - first < width:
             continue
         means = (sums[first + width:stop + 1] - sums[first:stop + 1 - width]) / width
@@ -274,14 +274,14 @@ def adaptation_metrics(log: dict, t_contact: float, scoring) -> dict:
     width = scoring.rmse_window_s
 
     def rmse(start):
-        window = (t >= t_contact + start - 1e-9) & (t < t_contact + start + width - 1e-9)
+        window = (t >= t_contact + start - TIME_TOLERANCE_S) & (t < t_contact + start + width - TIME_TOLERANCE_S)
         return float(np.sqrt(np.mean(error[window] ** 2)))
 
     span = t[-1] + CONTROL_PERIOD - t_contact  # logged time after the switch
-    whole = int(np.floor(span / width + 1e-9))
+    whole = int(np.floor(span / width + RATIO_TOLERANCE))
     windows = [rmse(k * width) for k in range(whole)]
     adaptation = None
-    for k in range(int(np.floor((span - width) / ADAPTATION_STEP_S + 1e-9)) + 1):
+    for k in range(int(np.floor((span - width) / ADAPTATION_STEP_S + RATIO_TOLERANCE)) + 1):
         if rmse(k * ADAPTATION_STEP_S) < scoring.adaptation_rmse_n:
             adaptation = k * ADAPTATION_STEP_S + width
             break
@@ -305,8 +305,8 @@ def stability_metrics(log: dict, scoring) -> dict:
     end = t[-1] + CONTROL_PERIOD  # logged time, as in adaptation_metrics
     start = end - scoring.rmse_window_s
     final_rmse = None
-    if start >= t_contact - 1e-9:
-        window = (t >= start - 1e-9) & (t < end - 1e-9)
+    if start >= t_contact - TIME_TOLERANCE_S:
+        window = (t >= start - TIME_TOLERANCE_S) & (t < end - TIME_TOLERANCE_S)
         error = log["contact_force_true"][window] - log["force_desired"][window]
         final_rmse = float(np.sqrt(np.mean(error**2)))
     return {
@@ -366,7 +366,7 @@ def identification_metrics(log: dict, identifiers) -> dict:
         return {}
     t = log["t"]
     truth = log["true_impedance"][-1]
-    early = t >= t_contact + EARLY_IDENTIFICATION_S - 1e-9
+    early = t >= t_contact + EARLY_IDENTIFICATION_S - TIME_TOLERANCE_S
     i_early = int(np.argmax(early)) if early.any() else None
     out = {}
     for config in identifiers:
@@ -427,8 +427,8 @@ def identification_tracking(log: dict, identifiers, t_contact: float) -> dict:
     within TRACKING_START_S of it."""
     t = log["t"]
     truth = log["true_impedance"]
-    after_switch = t >= t_contact - 1e-9
-    window = t >= t_contact + TRACKING_START_S - 1e-9
+    after_switch = t >= t_contact - TIME_TOLERANCE_S
+    window = t >= t_contact + TRACKING_START_S - TIME_TOLERANCE_S
     changes = np.ptp(truth[after_switch, 1:], axis=0) if after_switch.any() else [0, 0]
     if not window.any() or not np.any(changes > 0):
         return {}
@@ -534,8 +534,8 @@ def fault_metrics(log: dict, scenario: Scenario) -> dict:
             continue
         first, last = int(np.argmax(on)), len(on) - 1 - int(np.argmax(on[::-1]))
         end = t[last] + CONTROL_PERIOD
-        after = (t >= end - 1e-9) & (t < end + FAULT_AFTER_S - 1e-9)
-        span = (t >= t[first] - 1e-9) & (t < end + FAULT_AFTER_S - 1e-9)
+        after = (t >= end - TIME_TOLERANCE_S) & (t < end + FAULT_AFTER_S - TIME_TOLERANCE_S)
+        span = (t >= t[first] - TIME_TOLERANCE_S) & (t < end + FAULT_AFTER_S - TIME_TOLERANCE_S)
         entry.update(
             start_s=float(t[first]), end_s=float(end),
             peak_force_during_n=float(force[on].max()),
@@ -546,7 +546,7 @@ def fault_metrics(log: dict, scenario: Scenario) -> dict:
             recovery_s=None)
         if tracking is not None:
             # Runs of `hold` samples in band, from the fault's end on.
-            ok = tracking & (t >= end - 1e-9)
+            ok = tracking & (t >= end - TIME_TOLERANCE_S)
             runs = np.convolve(ok.astype(int), np.ones(hold, dtype=int), mode="valid")
             starts = np.flatnonzero(runs == hold)
             if len(starts):
@@ -568,7 +568,7 @@ def safety_metrics(log: dict, scenario: Scenario) -> dict:
     if not len(t):
         return {}
     safety = scenario.safety
-    end = t >= t[-1] - END_WINDOW_S + 1e-9
+    end = t >= t[-1] - END_WINDOW_S + TIME_TOLERANCE_S
     force = log["contact_force_true"][end]
     velocity = log["tip_velocity_true"][end]
     finite = bool(np.all(np.isfinite(force)) and np.all(np.isfinite(velocity)))

@@ -47,6 +47,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path, PurePosixPath
 
+from drake_contact.tolerances import RATIO_TOLERANCE
+
 
 @dc.dataclass
 class Job:
@@ -468,7 +470,7 @@ def _small_lr(runs):
     first = windows[0]
     adapt = m.get("adaptation_time_s")
     width = 5.0
-    late = [] if adapt is None else windows[math.ceil(adapt / width - 1e-9):]
+    late = [] if adapt is None else windows[math.ceil(adapt / width - RATIO_TOLERANCE):]
     losses = m.get("contact_losses", 0)
     measured = f"first 5 s RMSE {first:.2f} N; adapted {_time(adapt)} after contact"
     if late:

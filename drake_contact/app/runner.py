@@ -39,7 +39,7 @@ from drake_contact.app.visualization import (
     AddContactVisualization, check_record_path, finish_recording, new_meshcat, start_recording)
 from drake_contact.diagram import ContactStation, MakeContactDiagram, SeedNoise
 from drake_contact.errors import ScenarioError, SimulationDiverged
-from drake_contact.plant.arm import CONTROL_PERIOD
+from drake_contact.plant.arm import CONTROL_PERIOD, RATIO_TOLERANCE
 from drake_contact.scenario import Scenario, dump_scenario
 
 #: Simulated seconds between divergence checks and progress reports.
@@ -364,7 +364,7 @@ def simulate(diagram, loggers: SignalLoggers, *, progress=None, realtime_rate=0.
     start = time.perf_counter()
     try:
         simulator.Initialize()
-        chunks = int(np.ceil(duration / CHUNK_S - 1e-9))
+        chunks = int(np.ceil(duration / CHUNK_S - RATIO_TOLERANCE))
         for k in range(1, chunks + 1):
             # Whole multiples of the chunk (no accumulated rounding), ending
             # exactly at the duration.

@@ -74,9 +74,10 @@ from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Demultiplexer
 
 from drake_contact.control.controller_model import ArmModel, ControllerModelConfig
-from drake_contact.control.hybrid_controller import read_measured_state
+from drake_contact.control.hybrid_controller import CONTACT_THRESHOLD_N, read_measured_state
 from drake_contact.errors import ScenarioError
-from drake_contact.plant.arm import CONTROL_PERIOD, DeclareSampledUpdate, is_sample_time
+from drake_contact.plant.arm import (
+    CONTROL_PERIOD, TIME_TOLERANCE_S, DeclareSampledUpdate, is_sample_time)
 from drake_contact.plant.planar_arm import solve3
 
 APPROACH, CONTACT = 0, 1
@@ -110,7 +111,7 @@ class ApproachOptions:
     y_desired: float = 0.0
     phi_desired: float = 0.0
     # Switch to contact above this filtered force (N), back below the other.
-    contact_threshold_n: float = 5.0
+    contact_threshold_n: float = CONTACT_THRESHOLD_N
     contact_loss_threshold_n: float = 0.0
     # Compensate the joints' dry friction with the model's F_c.
     friction_compensation: bool = True
@@ -284,7 +285,7 @@ class _BaselineLaw(LeafSystem):
         if c.friction_compensation:
             tau = [a + b for a, b in zip(tau, self._model.friction_compensation(qdot))]
         if mode == APPROACH:
-            if timer <= c.approach_hold_s + 1e-9:  # the ramp starts from here
+            if timer <= c.approach_hold_s + TIME_TOLERANCE_S:  # the ramp starts from here
                 x_origin = x[0]
             accel, wrench = self._approach_acceleration(timer, x_origin, x, xd), None
             timer += CONTROL_PERIOD

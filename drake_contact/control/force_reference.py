@@ -30,7 +30,8 @@ import dataclasses as dc
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-from drake_contact.plant.arm import CONTROL_PERIOD, DeclareSampledUpdate, is_sample_time
+from drake_contact.plant.arm import (
+    CONTROL_PERIOD, RATIO_TOLERANCE, TIME_TOLERANCE_S, DeclareSampledUpdate, is_sample_time)
 from drake_contact.errors import ScenarioError
 
 
@@ -96,12 +97,12 @@ class ForceReferenceConfig:
     def _at(self, since_contact):
         """f_d without the probe, in contact."""
         if self.hold_s:
-            if since_contact < self.hold_s - 1e-9:
+            if since_contact < self.hold_s - TIME_TOLERANCE_S:
                 return self.levels[0]
             since_contact -= self.hold_s
         cycle = self.half_period_s * len(self.levels)
-        k = int(np.floor(since_contact / self.half_period_s + 1e-9)) % len(self.levels)
-        tau = since_contact - cycle * np.floor(since_contact / cycle + 1e-9)
+        k = int(np.floor(since_contact / self.half_period_s + RATIO_TOLERANCE)) % len(self.levels)
+        tau = since_contact - cycle * np.floor(since_contact / cycle + RATIO_TOLERANCE)
         return self.levels[k] + self.sine_amplitude_n * np.sin(
             2 * np.pi * self.sine_frequency_hz * tau)
 

@@ -152,13 +152,18 @@ from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Demultiplexer
 
 from drake_contact.plant.arm import (
-    CONTROL_PERIOD, LINK_LENGTHS, DeclareSampledUpdate, is_sample_time)
+    CONTROL_PERIOD, LINK_LENGTHS, TIME_TOLERANCE_S, DeclareSampledUpdate, is_sample_time)
 from drake_contact.control.controller_model import ArmModel, ControllerModelConfig
 from drake_contact.plant.planar_arm import solve3
 from drake_contact.errors import ScenarioError, require_finite
 
 CONTACT_LAWS = ("hybrid", "decoupled")
 APPROACH, CONTACT = 0, 1
+
+#: The filtered force (N) above which the tip is in contact: the thesis's
+#: switch from approach to hybrid control (section 4.4; its code's 0.8 N is
+#: the `*_appendix_e` scenarios'). Every switch and contact clock defaults to it.
+CONTACT_THRESHOLD_N = 5.0
 
 
 @dc.dataclass
@@ -266,7 +271,7 @@ class HybridControllerConfig:
     # code's compensation is exactly 0 throughout.
     friction_compensation: bool = False
     # Switch to contact above this filtered force (N), back below the other.
-    contact_threshold_n: float = 5.0
+    contact_threshold_n: float = CONTACT_THRESHOLD_N
     contact_loss_threshold_n: float = 0.0
     # Held position y_d (m) and angle phi_d (rad) in contact.
     y_desired: float = 0.0
@@ -396,10 +401,10 @@ class HybridControlLaw(LeafSystem):
 
     def _approach_target(self, timer, x_d):
         a = self._config.approach
-        if timer < a.hold_time_s - 1e-9:
+        if timer < a.hold_time_s - TIME_TOLERANCE_S:
             return x_d  # start_x at the start; the last target after a loss
         return a.first_target_x + a.step_m * np.floor((timer - a.hold_time_s) / a.step_period_s
-                                                      + 1e-9)
+                                                      + TIME_TOLERANCE_S)
 
     def _calc_control(self, context, output):
         c = self._config

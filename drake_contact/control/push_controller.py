@@ -22,6 +22,7 @@ from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import SymbolicVectorSystem
 
 from drake_contact.errors import ScenarioError
+from drake_contact.plant.arm import TIME_TOLERANCE_S
 from drake_contact.plant.planar_arm import tip_jacobian, tip_pose
 from drake_contact.plant.tip_kinematics import check_closed_forms
 
@@ -79,7 +80,7 @@ class ConstantForcePushController(Diagram):
         _, y, phi = tip_pose(q, sin=sym.sin, cos=sym.cos)
         J = tip_jacobian(q, sin=sym.sin, cos=sym.cos)
         xdot, ydot, phidot = (row[0] * v[0] + row[1] * v[1] + row[2] * v[2] for row in J)
-        force = sym.if_then_else(t >= c.start_time - 1e-9, c.force, 0.0)
+        force = sym.if_then_else(t >= c.start_time - TIME_TOLERANCE_S, c.force, 0.0)
         wrench = [force - c.damping_x * xdot,
                   c.stiffness_y * (c.y_desired - y) - c.damping_y * ydot,
                   c.stiffness_phi * (c.phi_desired - phi) - c.damping_phi * phidot]

@@ -51,8 +51,10 @@ import numpy as np
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Demultiplexer
 
+from drake_contact.control.hybrid_controller import CONTACT_THRESHOLD_N
 from drake_contact.errors import ScenarioError
-from drake_contact.plant.arm import CONTROL_PERIOD, DeclareSampledUpdate, is_sample_time
+from drake_contact.plant.arm import (
+    CONTROL_PERIOD, TIME_TOLERANCE_S, DeclareSampledUpdate, is_sample_time)
 from drake_contact.plant.planar_arm import solve3, tip_jacobian
 
 #: safety_state values, in order of precedence (higher wins).
@@ -106,7 +108,7 @@ class SafetyConfig:
     # by its approach.
     contact_loss: str = "hold"
     # Contact: filtered force above this (N); lost: below this (N) for this long (s).
-    contact_force_n: float = 5.0
+    contact_force_n: float = CONTACT_THRESHOLD_N
     contact_loss_force_n: float = 0.5
     contact_loss_time_s: float = 0.05
     # The joint PD of a hold or a stop (N m/rad, N m s/rad): about 5 Hz and
@@ -165,9 +167,11 @@ _TAU_GOOD = slice(7, 10)       # torque sent when the reading last moved (N m)
 _Q_GOOD = slice(10, 13)        # joint angles when the reading last moved (rad)
 _RAW_PREV, _FROZEN, _ARMED, _REFLEX_T, _LOSS_T, _FAULT_T, _OVER, _REASON = range(13, 21)
 _LAW_SIZE = 21
-#: Why the safe stop fired (the ``safety_stop_reason`` output).
-STOP_REASONS = {0: "none", 1: "non-finite controller torque", 2: "measured force over the limit",
-                3: "tip speed over the limit", 4: "sensor fault too long"}
+#: Why the safe stop fired (the ``safety_stop_reason`` output), and its words.
+STOP_NONE, STOP_TORQUE_NOT_FINITE, STOP_FORCE_LIMIT, STOP_TIP_SPEED, STOP_SENSOR_FAULT = range(5)
+STOP_REASONS = {STOP_NONE: "none", STOP_TORQUE_NOT_FINITE: "non-finite controller torque",
+                STOP_FORCE_LIMIT: "measured force over the limit",
+                STOP_TIP_SPEED: "tip speed over the limit", STOP_SENSOR_FAULT: "sensor fault too long"}
 
 
 class SafetySupervisorLaw(LeafSystem):
@@ -253,11 +257,12 @@ class SafetySupervisorLaw(LeafSystem):
         state = int(held[_STATE])
         reason = int(held[_REASON])
         if state != STOPPED:
-            reason = (1 if not np.all(np.isfinite(tau_cmd)) else
-                      2 if over >= c.force_stop_samples else
-                      3 if t >= c.speed_check_from_s
+            reason = (STOP_TORQUE_NOT_FINITE if not np.all(np.isfinite(tau_cmd)) else
+                      STOP_FORCE_LIMIT if over >= c.force_stop_samples else
+                      STOP_TIP_SPEED if t >= c.speed_check_from_s
                       and math.hypot(v[0], v[1]) > c.tip_speed_limit_m_s else
-                      4 if sensor_fault and t - fault_t >= c.sensor_fault_stop_s - 1e-9 else 0)
+                      STOP_SENSOR_FAULT if sensor_fault
+                      and t - fault_t >= c.sensor_fault_stop_s - TIME_TOLERANCE_S else STOP_NONE)
         if reason:
             if state != STOPPED:
                 # Hold the joint angles that put the tip stop_backoff_m back
@@ -271,14 +276,14 @@ class SafetySupervisorLaw(LeafSystem):
             tau = out[_TAU_GOOD] + self._pd(out[_Q_GOOD], q, qdot)
         elif c.contact_loss == "hold" and (state == LOSS_HOLD and f <= c.contact_force_n or
                                            loss_t > -np.inf and
-                                           t - loss_t >= c.contact_loss_time_s - 1e-9):
+                                           t - loss_t >= c.contact_loss_time_s - TIME_TOLERANCE_S):
             if state != LOSS_HOLD:
                 out[_Q_HOLD] = q
             state = LOSS_HOLD
             loss_t = -np.inf
             tau = self._pd(out[_Q_HOLD], q, qdot)
         else:
-            reflex = t - reflex_t <= c.reflex_hold_s + 1e-9
+            reflex = t - reflex_t <= c.reflex_hold_s + TIME_TOLERANCE_S
             push_max = (c.reflex_push_fraction if reflex else c.push_clamp_fraction) * limit
             J = tip_jacobian([float(x) for x in q])
             # F = J^-T tau: solve J^T F = tau.

@@ -56,7 +56,7 @@ import dataclasses as dc
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-from drake_contact.plant.arm import CONTROL_PERIOD, DeclareSampledUpdate
+from drake_contact.plant.arm import CONTROL_PERIOD, TIME_TOLERANCE_S, DeclareSampledUpdate
 from drake_contact.errors import ScenarioError
 
 
@@ -127,7 +127,7 @@ class RlsEstimator:
         whether to reset (``samples``: this sample's count since the switch,
         ``last``: the count at the last reset or 0)."""
         error += CONTROL_PERIOD / config.change_time_constant_s * (prediction_error - error)
-        armed = (samples - last) * CONTROL_PERIOD >= config.change_holdoff_s - 1e-9
+        armed = (samples - last) * CONTROL_PERIOD >= config.change_holdoff_s - TIME_TOLERANCE_S
         return error, armed and abs(error) > config.change_threshold_n
 
     def detect(self, phi, f):

@@ -13,6 +13,7 @@ from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.framework import DiagramBuilder
 
 from drake_contact.errors import ScenarioError
+from drake_contact.tolerances import RATIO_TOLERANCE, TIME_TOLERANCE_S
 from drake_contact.resources import arm_urdf_path
 
 #: Controller sample period (s): every controller runs at 1 kHz.
@@ -85,8 +86,8 @@ def is_sample_time(t: float) -> bool:
     """True at the 1 kHz sample instants from FIRST_SAMPLE_S on (whole
     multiples of the period, as Drake's periodic events compute them), False
     before and between them (a plant step finer than 1 ms)."""
-    return (t > FIRST_SAMPLE_S - 1e-9
-            and abs(t - round(t / CONTROL_PERIOD) * CONTROL_PERIOD) <= 1e-9)
+    return (t > FIRST_SAMPLE_S - TIME_TOLERANCE_S
+            and abs(t - round(t / CONTROL_PERIOD) * CONTROL_PERIOD) <= TIME_TOLERANCE_S)
 
 
 #: Link lengths a_i (m), masses m_i (kg), COM offsets S_ix (m), Izz (kg m^2).
@@ -126,7 +127,7 @@ class ArmConfig:
                                 "(at most 1000 plant steps per control period)")
         ratio = CONTROL_PERIOD / h
         n = int(round(ratio))
-        if abs(ratio - n) > 1e-9 * ratio or n & (n - 1) or h != CONTROL_PERIOD / n:
+        if abs(ratio - n) > RATIO_TOLERANCE * ratio or n & (n - 1) or h != CONTROL_PERIOD / n:
             # Drake times a periodic event k * period: k h equals n * 1 ms to
             # the bit for every k only when 1 ms / h is a power of two (for
             # h = 0.1 ms, 18 % of the samples fall an ulp off the plant's

@@ -34,9 +34,9 @@ import dataclasses as dc
 
 import numpy as np
 import pydrake.symbolic as sym
-from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
+from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import (
-    AffineSystem, MatrixGain, Multiplexer, Saturation, SymbolicVectorSystem)
+    AffineSystem, MatrixGain, Saturation, SymbolicVectorSystem)
 from pydrake.systems.sensors import RotaryEncoders
 
 from drake_contact.blocks import AddSubdiagram

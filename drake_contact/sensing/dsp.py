@@ -30,7 +30,7 @@ from pydrake.systems.primitives import (
     Demultiplexer, Multiplexer, PassThrough, SymbolicVectorSystem)
 
 from drake_contact.blocks import AddSubdiagram
-from drake_contact.plant.arm import CONTROL_PERIOD
+from drake_contact.plant.arm import CONTROL_PERIOD, TIME_TOLERANCE_S
 from drake_contact.errors import ScenarioError
 from drake_contact.faults import ChainFaults
 from drake_contact.sensing.filters import (
@@ -132,7 +132,7 @@ class DspForceInput(Diagram):
         # -scale * floor(clip(v) / lsb + 0.5) * lsb, as ((-scale * n) * lsb).
         reading = [_opaque(-config.scale_n_per_v * floor(
             sym_min(sym_max(v, -config.adc_range_v), hi) / lsb + 0.5)) * lsb for v in voltage]
-        taring = t < config.tare_window_s - 1e-9
+        taring = t < config.tare_window_s - TIME_TOLERANCE_S
         dynamics = ([if_then_else(taring, s + r, s) for s, r in zip(total, reading)]
                     + [if_then_else(taring, count + 1, count)]
                     + [if_then_else(taring, (s + r) / (count + 1), o)

@@ -48,7 +48,7 @@ from pydrake.systems.primitives import RandomSource
 from scipy import signal
 
 from drake_contact.blocks import AddSubdiagram
-from drake_contact.plant.arm import CONTROL_PERIOD
+from drake_contact.plant.arm import CONTROL_PERIOD, RATIO_TOLERANCE
 from drake_contact.errors import ScenarioError
 from drake_contact.sensing.filters import butterworth_analog, discretize_analog
 
@@ -131,7 +131,7 @@ class ForceSensorConfig:
             bad("output_scale_n_per_v", "must be finite and >= 1e-06 N/V")
         for rate, name in ((self.adc_rate_hz, "adc_rate_hz"), (1000.0, "the 1 kHz DSP rate")):
             ratio = self.fine_rate_hz / rate
-            if not (self.fine_rate_hz > 0) or abs(ratio - round(ratio)) > 1e-9 * ratio:
+            if not (self.fine_rate_hz > 0) or abs(ratio - round(ratio)) > RATIO_TOLERANCE * ratio:
                 bad("fine_rate_hz", f"must be a whole multiple of {name} ({rate} Hz)")
 
     @property
