@@ -32,3 +32,35 @@ def AddSubdiagram(builder: DiagramBuilder, name: str, build):
     diagram = inner.Build()
     diagram.set_name(name)
     return builder.AddSystem(diagram)
+
+
+class Layout:
+    """The named fields of a flat vector, in order (a law's output and held
+    state): ``Layout(("tau", 3), ("mode", 1))``. ``layout.tau`` is the
+    field's slice, ``layout.mode`` the index of a field of size 1;
+    ``layout.size`` is the vector's size, ``layout.sizes`` the fields'
+    sizes in order (a Demultiplexer's), and ``layout.span(first, last)``
+    the slice from one field through another. The offsets are summed here,
+    once, from the sizes."""
+
+    def __init__(self, *fields):
+        self._fields = {}
+        offset = 0
+        for name, size in fields:
+            if name in self._fields or not name.isidentifier() or size < 1:
+                raise ValueError(f"Layout field {name!r} of size {size}: names must be "
+                                 "unique identifiers and sizes at least 1")
+            self._fields[name] = (offset, size)
+            setattr(self, name, offset if size == 1 else slice(offset, offset + size))
+            offset += size
+        self.size = offset
+        self.sizes = [size for _, size in self._fields.values()]
+
+    def span(self, first, last):
+        """The slice from field ``first`` through field ``last``."""
+        start, _ = self._fields[first]
+        end, size = self._fields[last]
+        return slice(start, end + size)
+
+    def names(self):
+        return list(self._fields)

@@ -73,6 +73,7 @@ import numpy as np
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Demultiplexer
 
+from drake_contact.blocks import Layout
 from drake_contact.control.controller_model import ArmModel, ControllerModelConfig
 from drake_contact.control.hybrid_controller import CONTACT_THRESHOLD_N, read_measured_state
 from drake_contact.errors import ScenarioError
@@ -86,8 +87,9 @@ OPTIONS_PREFIX = "controller.options"
 #: Layout of the held law vector (the discrete state): the three outputs,
 #: then the approach's state [time since the approach started (s), x_o (m)],
 #: then the contact law's own state.
-_TAU, _MODE, _INFO, _APPROACH = slice(0, 3), 3, slice(4, 8), slice(8, 10)
-_LAW_STATE = 10
+_LAW = Layout(("tau", 3), ("mode", 1), ("info", 4), ("approach", 2))
+_TAU, _MODE, _INFO, _APPROACH = _LAW.tau, _LAW.mode, _LAW.info, _LAW.approach
+_LAW_STATE = _LAW.size
 
 
 def _out_of_range(prefix, field, value, allowed):
@@ -483,7 +485,7 @@ class BaselineController(Diagram):
         builder = DiagramBuilder()
         self.law = builder.AddNamedSystem("law", law)
         size = law.get_output_port().size()
-        split = builder.AddNamedSystem("outputs", Demultiplexer([3, 1, 4, size - 8]))
+        split = builder.AddNamedSystem("outputs", Demultiplexer([3, 1, 4, size - _LAW.info.stop]))
         builder.Connect(law.get_output_port(), split.get_input_port())
         for i in range(law.num_input_ports()):
             builder.ExportInput(law.get_input_port(i), law.get_input_port(i).get_name())

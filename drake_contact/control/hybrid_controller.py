@@ -151,6 +151,7 @@ import numpy as np
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Demultiplexer
 
+from drake_contact.blocks import Layout
 from drake_contact.plant.arm import (
     CONTROL_PERIOD, LINK_LENGTHS, TIME_TOLERANCE_S, DeclareSampledUpdate, is_sample_time)
 from drake_contact.control.controller_model import ArmModel, ControllerModelConfig
@@ -341,9 +342,10 @@ class HybridControllerConfig:
 #: sums of the y and phi errors (m, rad), the force at this sample (N), the k_e
 #: the decoupled law used (N/m), f_d at this sample (N), the time until which
 #: the force integral is held (s), the low-passed force error (N)].
-_TAU, _MODE, _INFO, _JACOBIAN, _INTERNAL = (slice(0, 3), slice(3, 4), slice(4, 8),
-                                           slice(8, 17), slice(17, 27))
-_LAW_SIZE = 27
+_LAW = Layout(("tau", 3), ("mode", 1), ("info", 4), ("jacobian", 9), ("internal", 10))
+_TAU, _MODE, _INFO, _JACOBIAN, _INTERNAL = (
+    _LAW.tau, _LAW.mode, _LAW.info, _LAW.jacobian, _LAW.internal)
+_LAW_SIZE = _LAW.size
 
 
 def read_measured_state(context, pose, velocity, joint_positions, joint_velocities):
@@ -416,7 +418,7 @@ class HybridControlLaw(LeafSystem):
         x, xd, q, qdot = read_measured_state(
             context, self._pose, self._velocity, self._q, self._qdot)
         f = self._force.Eval(context)[0]
-        mode = held[3]
+        mode = held[_MODE]
         info = held[_INFO].tolist()
         (timer, x_d, error_sum, y_sum, phi_sum, f_previous, k_used, fd_previous,
          hold_until, error_lp) = held[_INTERNAL].tolist()
@@ -529,7 +531,7 @@ class HybridController(Diagram):
         super().__init__()
         builder = DiagramBuilder()
         law = builder.AddNamedSystem("law", HybridControlLaw(config))
-        split = builder.AddNamedSystem("outputs", Demultiplexer([3, 1, 4, 9, 10]))
+        split = builder.AddNamedSystem("outputs", Demultiplexer(_LAW.sizes))
         builder.Connect(law.get_output_port(), split.get_input_port())
         for port in range(law.num_input_ports()):
             builder.ExportInput(law.get_input_port(port), law.get_input_port(port).get_name())

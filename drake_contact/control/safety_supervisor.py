@@ -51,6 +51,7 @@ import numpy as np
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Demultiplexer
 
+from drake_contact.blocks import Layout
 from drake_contact.control.hybrid_controller import CONTACT_THRESHOLD_N
 from drake_contact.errors import ScenarioError
 from drake_contact.plant.arm import (
@@ -160,18 +161,25 @@ class SafetyConfig:
 
 
 # The law's output and held state: [tau (3), safety_state, then memory].
-_TAU = slice(0, 3)
-_STATE = 3
-_Q_HOLD = slice(4, 7)          # joint angles a hold or stop holds (rad)
-_TAU_GOOD = slice(7, 10)       # torque sent when the reading last moved (N m)
-_Q_GOOD = slice(10, 13)        # joint angles when the reading last moved (rad)
-_RAW_PREV, _FROZEN, _ARMED, _REFLEX_T, _LOSS_T, _FAULT_T, _OVER, _REASON = range(13, 21)
-_LAW_SIZE = 21
+_LAW = Layout(
+    ("tau", 3), ("state", 1),
+    ("q_hold", 3),             # joint angles a hold or stop holds (rad)
+    ("tau_good", 3),           # torque sent when the reading last moved (N m)
+    ("q_good", 3),             # joint angles when the reading last moved (rad)
+    ("raw_prev", 1), ("frozen", 1), ("armed", 1), ("reflex_t", 1), ("loss_t", 1),
+    ("fault_t", 1), ("over", 1), ("reason", 1))
+_TAU, _STATE, _Q_HOLD, _TAU_GOOD, _Q_GOOD = (_LAW.tau, _LAW.state, _LAW.q_hold, _LAW.tau_good,
+                                             _LAW.q_good)
+_RAW_PREV, _FROZEN, _ARMED, _REFLEX_T, _LOSS_T, _FAULT_T, _OVER, _REASON = (
+    _LAW.raw_prev, _LAW.frozen, _LAW.armed, _LAW.reflex_t, _LAW.loss_t, _LAW.fault_t, _LAW.over,
+    _LAW.reason)
+_LAW_SIZE = _LAW.size
 #: Why the safe stop fired (the ``safety_stop_reason`` output), and its words.
 STOP_NONE, STOP_TORQUE_NOT_FINITE, STOP_FORCE_LIMIT, STOP_TIP_SPEED, STOP_SENSOR_FAULT = range(5)
 STOP_REASONS = {STOP_NONE: "none", STOP_TORQUE_NOT_FINITE: "non-finite controller torque",
                 STOP_FORCE_LIMIT: "measured force over the limit",
-                STOP_TIP_SPEED: "tip speed over the limit", STOP_SENSOR_FAULT: "sensor fault too long"}
+                STOP_TIP_SPEED: "tip speed over the limit",
+                STOP_SENSOR_FAULT: "sensor fault too long"}
 
 
 class SafetySupervisorLaw(LeafSystem):
@@ -332,7 +340,9 @@ class SafetySupervisor(Diagram):
         super().__init__()
         builder = DiagramBuilder()
         law = builder.AddNamedSystem("law", SafetySupervisorLaw(config))
-        split = builder.AddNamedSystem("outputs", Demultiplexer([3, 1, _LAW_SIZE - 5, 1]))
+        memory = _LAW.span("q_hold", "over")
+        split = builder.AddNamedSystem(
+            "outputs", Demultiplexer([3, 1, memory.stop - memory.start, 1]))
         builder.Connect(law.get_output_port(), split.get_input_port())
         for i in range(law.num_input_ports()):
             port = law.get_input_port(i)
