@@ -252,8 +252,35 @@ def MakeContactDiagram(scenario: Scenario) -> ContactStation:
     scenario.validate()
     builder = DiagramBuilder()
     plant, scene_graph, tip, wall, friction, faults = _add_arm_and_wall(builder, scenario)
-    state_port = plant.get_state_output_port()
+    sensing = _add_sensing(builder, scenario, plant, tip, wall, faults)
+    control = _add_control(builder, scenario, plant, sensing.measured, faults)
+    signals = _Signals(builder)
+    _export_physics(signals.export, plant, tip, wall)
+    _export_sensing_and_control(signals.export, scenario, sensing, control, friction)
+    _export_faults(signals.export, builder, scenario, faults)
+    signals.export("query_object", scene_graph.get_query_output_port(),
+                   "the SceneGraph's query object (for visualizers)", log=False)
+    station = ContactStation(scenario, signals.signals)
+    builder.BuildInto(station)
+    station.set_name("station")
+    _check_unique_noise_names(station)
+    return station
 
+
+@dc.dataclass
+class _Sensing:
+    """The sensors' ports: the encoders' counts after any encoder fault, the
+    DSP sub-diagram, and what the sampled systems read."""
+
+    counted: object
+    dsp: object
+    measured: MeasuredSignals
+
+
+def _add_sensing(builder, scenario, plant, tip, wall, faults) -> _Sensing:
+    """The encoders and the kinematic estimator, the force sensor and the
+    DSP, with the faults on their signals."""
+    state_port = plant.get_state_output_port()
     encoders = AddEncoders(builder, scenario.encoders, scenario.arm.initial_positions)
     builder.Connect(state_port, encoders.GetInputPort("plant_state"))
     estimator = AddKinematicEstimator(
@@ -285,6 +312,27 @@ def MakeContactDiagram(scenario: Scenario) -> ContactStation:
         **{name: estimator.GetOutputPort(name) for name in (
             "tip_pose", "tip_velocity", "tip_acceleration", "joint_positions",
             "joint_velocities", "tip_velocity_raw", "tip_acceleration_raw")})
+    return _Sensing(counted, dsp, measured)
+
+
+@dc.dataclass
+class _Control:
+    """The control side's systems and ports: the controller (its system and
+    its output ports by name), the identifiers and the supervisor (None when
+    absent), the torque the controller commands and the one the plant gets."""
+
+    system: object
+    outputs: dict
+    identifiers: object
+    supervisor: object
+    torque: object
+    applied: object
+
+
+def _add_control(builder, scenario, plant, measured, faults) -> _Control:
+    """The controller, the identifiers, the safety supervisor, the torque
+    limits, any drive faults, the motors and (for a plant step under 1 ms)
+    the DAC's hold, wired from ``measured`` to the plant's actuation."""
     controller_system, controller = _add_controller(builder, scenario, plant, measured)
     torque = controller["joint_torque_commanded"]
     identifiers = None
@@ -327,10 +375,12 @@ def MakeContactDiagram(scenario: Scenario) -> ContactStation:
         builder.Connect(applied, dac.get_input_port())
         applied = dac.get_output_port()
     builder.Connect(applied, plant.get_actuation_input_port())
+    return _Control(controller_system, controller, identifiers, supervisor, torque, applied)
 
-    signals = _Signals(builder)
-    export = signals.export
-    export("joint_state_true", state_port, "arm [q; v] (rad, rad/s)",
+
+def _export_physics(export, plant, tip, wall):
+    """The true signals: the arm's state, the tip's, the wall's."""
+    export("joint_state_true", plant.get_state_output_port(), "arm [q; v] (rad, rad/s)",
            log_as={"joint_positions_true": slice(0, 3), "joint_velocities_true": slice(3, 6)})
     export("tip_state_true", tip.GetOutputPort("tip_state"),
            "tip [x, y, phi, xdot, ydot, phidot], world (m, rad, /s)",
@@ -341,9 +391,15 @@ def MakeContactDiagram(scenario: Scenario) -> ContactStation:
            "true surface displacement xe (m)")
     export("true_impedance", wall.GetOutputPort("true_impedance"),
            "true [M_e, B_e, K_e] (kg, N s/m, N/m)")
-    export("joint_positions_measured", counted,
+
+
+def _export_sensing_and_control(export, scenario, sensing, control, friction):
+    """What the sensors read, what the controller, supervisor and
+    identifiers output, and the torques on the joints."""
+    supervisor = control.supervisor
+    export("joint_positions_measured", sensing.counted,
            "encoder-quantized q, zeroed at q0, after any encoder fault (rad)")
-    export("joint_torque_commanded", torque, "controller's torque before saturation (N m)")
+    export("joint_torque_commanded", control.torque, "controller's torque before saturation (N m)")
     if supervisor is not None:
         export("joint_torque_supervised", supervisor.GetOutputPort("joint_torque"),
                "the safety supervisor's torque, before saturation (N m)")
@@ -353,10 +409,16 @@ def MakeContactDiagram(scenario: Scenario) -> ContactStation:
         export("safety_stop_reason", supervisor.GetOutputPort("safety_stop_reason"),
                "why the supervisor stopped the arm: " + ", ".join(
                    f"{k} {v}" for k, v in STOP_REASONS.items()))
-    export("joint_torque_applied", applied,
+    export("joint_torque_applied", control.applied,
            "motor torque into the plant: saturated, times the motor scale (N m)")
     export("joint_friction_torque", friction.GetOutputPort("torque"),
            "friction torque on the joints (N m)")
+    _export_measured(export, sensing)
+    _export_controller(export, scenario, control)
+
+
+def _export_measured(export, sensing):
+    measured, dsp = sensing.measured, sensing.dsp
     export("force_measured", measured.force_raw, "DSP force after ADC, scale, sign and tare (N)")
     export("force_filtered", measured.force, "force_measured through the 120 Hz Butterworth (N)")
     if dsp.HasOutputPort("force_measured_antialiased"):
@@ -370,7 +432,11 @@ def MakeContactDiagram(scenario: Scenario) -> ContactStation:
            "q1, q2 as read, q3 filtered (rad)")
     export("joint_velocities_estimated", measured.joint_velocities,
            "joint velocities by backward differences (rad/s)")
-    detected = not controller_system.HasOutputPort("contact_info")
+
+
+def _export_controller(export, scenario, control):
+    controller, identifiers = control.outputs, control.identifiers
+    detected = not control.system.HasOutputPort("contact_info")
     for name, meaning in CONTROLLER_SIGNALS.items():
         if name in controller:
             if detected and name in DETECTOR_SIGNALS:
@@ -390,23 +456,20 @@ def MakeContactDiagram(scenario: Scenario) -> ContactStation:
                 export(f"force_estimate_{config.name}",
                        identifiers.GetOutputPort(f"force_estimate_{config.name}"),
                        f"identifier {config.name}'s network force f(x) (N)")
-    if scenario.faults:
-        flags = builder.AddNamedSystem("fault_flags", Multiplexer(len(scenario.faults)))
-        for i in range(len(scenario.faults)):
-            builder.Connect(faults.active[i], flags.get_input_port(i))
-        export("fault_active", flags.get_output_port(),
-               "1 while the scenario's fault i is on, one column per fault in its order",
-               log_as={"fault_active": slice(0, len(scenario.faults))})
-        export("fault_contact_time", faults.clock,
-               "first sample with a true contact force > 5 N, the faults' clock (s; -1 before)")
-    export("query_object", scene_graph.get_query_output_port(),
-           "the SceneGraph's query object (for visualizers)", log=False)
 
-    station = ContactStation(scenario, signals.signals)
-    builder.BuildInto(station)
-    station.set_name("station")
-    _check_unique_noise_names(station)
-    return station
+
+def _export_faults(export, builder, scenario, faults):
+    """Which fault is on, and the faults' contact clock."""
+    if not scenario.faults:
+        return
+    flags = builder.AddNamedSystem("fault_flags", Multiplexer(len(scenario.faults)))
+    for i in range(len(scenario.faults)):
+        builder.Connect(faults.active[i], flags.get_input_port(i))
+    export("fault_active", flags.get_output_port(),
+           "1 while the scenario's fault i is on, one column per fault in its order",
+           log_as={"fault_active": slice(0, len(scenario.faults))})
+    export("fault_contact_time", faults.clock,
+           "first sample with a true contact force > 5 N, the faults' clock (s; -1 before)")
 
 
 def control_steps_per_plant_step(scenario: Scenario) -> int:

@@ -469,27 +469,49 @@ class HybridControlLaw(LeafSystem):
                 if c.contact_force_rate_damping:
                     force_x -= c.contact_force_rate_damping * (f - f_previous) / CONTROL_PERIOD
             else:
-                low, high = c.stiffness_bounds
-                k_e = min(max(self._stiffness.Eval(context)[0], low), high)
-                if c.stiffness_halving_time_s:
-                    k_e = max(k_e, k_used * 0.5 ** (CONTROL_PERIOD / c.stiffness_halving_time_s))
-                k_used = k_e
-                accel[0] = (c.decoupled_force_gain * error
-                            - c.decoupled_force_damping * k_e * xd[0]) / k_e
-                force_x = f_d
-                if c.decoupled_force_integral_gain:
-                    force_x += c.decoupled_force_integral_gain * error_sum
-                if c.force_coupling_cancellation:
-                    # Lambda^-1 e_x = J M^-1 J^T e_x: the task acceleration a unit
-                    # force along x gives; cancel its y, phi part for f_d - f.
-                    v = solve3(M, [J[0][0], J[0][1], J[0][2]])
-                    imbalance = c.force_coupling_cancellation * error
-                    for i in (1, 2):
-                        accel[i] -= (J[i][0] * v[0] + J[i][1] * v[1] + J[i][2] * v[2]) * imbalance
+                force_x, k_used = self._decoupled_x(
+                    context, f_d, error, error_sum, k_used, xd, accel, J, M)
         qddot = solve3(J, [a - b for a, b in zip(accel, jdot_qdot)])
         tau = [tau[i] + M[i][0] * qddot[0] + M[i][1] * qddot[1] + M[i][2] * qddot[2]
                + J[0][i] * force_x for i in range(3)]
-        if mode == CONTACT and c.force_error_friction_compensation:
+        if mode == CONTACT:
+            tau, error_lp = self._contact_joint_terms(tau, error, error_lp, J, target, x, xd)
+
+        output.SetFromVector(self._model.command(tau) + [mode] + info + J[0] + J[1] + J[2]
+                             + [timer, x_d, error_sum, y_sum, phi_sum, f, k_used, fd_previous,
+                                hold_until, error_lp])
+
+
+    def _decoupled_x(self, context, f_d, error, error_sum, k_used, xd, accel, J, M):
+        """The decoupled law's x (4.19-4.21) with this sample's K_e estimate:
+        sets ``accel[0]`` (and cancels the force imbalance's y, phi part in
+        ``accel``); returns the force along x and the K_e it used."""
+        c = self._config
+        low, high = c.stiffness_bounds
+        k_e = min(max(self._stiffness.Eval(context)[0], low), high)
+        if c.stiffness_halving_time_s:
+            k_e = max(k_e, k_used * 0.5 ** (CONTROL_PERIOD / c.stiffness_halving_time_s))
+        accel[0] = (c.decoupled_force_gain * error
+                    - c.decoupled_force_damping * k_e * xd[0]) / k_e
+        force_x = f_d
+        if c.decoupled_force_integral_gain:
+            force_x += c.decoupled_force_integral_gain * error_sum
+        if c.force_coupling_cancellation:
+            # Lambda^-1 e_x = J M^-1 J^T e_x: the task acceleration a unit
+            # force along x gives; cancel its y, phi part for f_d - f.
+            v = solve3(M, [J[0][0], J[0][1], J[0][2]])
+            imbalance = c.force_coupling_cancellation * error
+            for i in (1, 2):
+                accel[i] -= (J[i][0] * v[0] + J[i][1] * v[1] + J[i][2] * v[2]) * imbalance
+        return force_x, k_e
+
+    def _contact_joint_terms(self, tau, error, error_lp, J, target, x, xd):
+        """In contact, the joint torques' options: static friction
+        compensated in the direction the low-passed force error asks, and
+        joint-space stiffness and damping of y and phi. Returns the torques
+        and the low-passed force error."""
+        c = self._config
+        if c.force_error_friction_compensation:
             error_lp += self._error_filter_gain * (error - error_lp)
             push = solve3(J, [1.0, 0.0, 0.0])  # the joints' turn for +x, y and phi held
             level = c.force_error_friction_compensation * min(
@@ -497,15 +519,12 @@ class HybridControlLaw(LeafSystem):
             friction = self._model.friction_levels
             tau = [tau[i] + level * friction[i] * math.copysign(1.0, push[i])
                    for i in range(3)]
-        if mode == CONTACT and self._joint_impedance:
+        if self._joint_impedance:
             stiffness, damping = c.pose_joint_stiffness, c.pose_joint_damping
             e_q = solve3(J, [0.0, target[1] - x[1], target[2] - x[2]])
             v_q = solve3(J, [0.0, xd[1], xd[2]])
             tau = [tau[i] + stiffness[i] * e_q[i] - damping[i] * v_q[i] for i in range(3)]
-
-        output.SetFromVector(self._model.command(tau) + [mode] + info + J[0] + J[1] + J[2]
-                             + [timer, x_d, error_sum, y_sum, phi_sum, f, k_used, fd_previous,
-                                hold_until, error_lp])
+        return tau, error_lp
 
 
 class HybridController(Diagram):

@@ -291,22 +291,7 @@ class SafetySupervisorLaw(LeafSystem):
             loss_t = -np.inf
             tau = self._pd(out[_Q_HOLD], q, qdot)
         else:
-            reflex = t - reflex_t <= c.reflex_hold_s + TIME_TOLERANCE_S
-            push_max = (c.reflex_push_fraction if reflex else c.push_clamp_fraction) * limit
-            J = tip_jacobian([float(x) for x in q])
-            # F = J^-T tau: solve J^T F = tau.
-            JT = [[J[r][k] for r in range(3)] for k in range(3)]
-            F = solve3(JT, [float(x) for x in tau_cmd])
-            if reflex:
-                F[0] -= c.reflex_damping_x * float(v[0])
-            clamped = F[0] > push_max
-            if clamped:
-                F[0] = push_max
-            if reflex or clamped:
-                tau = np.array([sum(J[r][k] * F[r] for r in range(3)) for k in range(3)])
-            else:
-                tau = np.array(tau_cmd, dtype=float)
-            state = REFLEX if reflex else CLAMPED if clamped else PASS
+            tau, state = self._push_limited(tau_cmd, q, v, t - reflex_t)
         rate = self._rate_per_sample
         if rate is not None and t > CONTROL_PERIOD / 2:
             step = np.where(rate > 0, np.clip(tau - held[_TAU], -rate, rate), tau - held[_TAU])
@@ -322,6 +307,29 @@ class SafetySupervisorLaw(LeafSystem):
         out[_OVER] = over
         out[_REASON] = reason
         output.SetFromVector(out)
+
+    def _push_limited(self, tau_cmd, q, v, since_reflex):
+        """The commanded torque with the tip's push along x clamped, and
+        within ``reflex_hold_s`` of a force over the reflex level
+        (``since_reflex`` ago) damped and clamped lower; and the state
+        that says which (PASS, CLAMPED or REFLEX)."""
+        c = self._config
+        reflex = since_reflex <= c.reflex_hold_s + TIME_TOLERANCE_S
+        push_max = (c.reflex_push_fraction if reflex else c.push_clamp_fraction) * c.force_limit_n
+        J = tip_jacobian([float(x) for x in q])
+        # F = J^-T tau: solve J^T F = tau.
+        JT = [[J[r][k] for r in range(3)] for k in range(3)]
+        F = solve3(JT, [float(x) for x in tau_cmd])
+        if reflex:
+            F[0] -= c.reflex_damping_x * float(v[0])
+        clamped = F[0] > push_max
+        if clamped:
+            F[0] = push_max
+        if reflex or clamped:
+            tau = np.array([sum(J[r][k] * F[r] for r in range(3)) for k in range(3)])
+        else:
+            tau = np.array(tau_cmd, dtype=float)
+        return tau, REFLEX if reflex else CLAMPED if clamped else PASS
 
     def _pd(self, q_hold, q, qdot):
         """The joint PD of a hold or a stop about ``q_hold``."""
