@@ -11,10 +11,12 @@ The public API, as a Drake user meets it::
     ...                                                        # your systems, your loggers
     result = dc.simulate(builder.Build(), loggers)             # checks, logs, metrics
 
-The library layers (:mod:`drake_contact.plant`, :mod:`.sensing`,
-:mod:`.control`, :mod:`.identification`, with :mod:`.scenario` and
-:mod:`.diagram`) never import the application (:mod:`drake_contact.app`:
-runner, metrics, plotting, visualization, reproduction, benchmark, CLI).
+The library (:mod:`drake_contact.plant`, :mod:`.sensing`, :mod:`.control`,
+:mod:`.identification`, :mod:`.scoring`, with :mod:`.scenario`,
+:mod:`.diagram`, :mod:`.simulation` and :mod:`.visualization`: building,
+simulating, logging, scoring and drawing a run) never imports the
+application (:mod:`drake_contact.app`: run folders, plotting, reproduction,
+sweeps, benchmark, fault study, CLI).
 """
 
 import importlib
@@ -25,11 +27,12 @@ import importlib
 # a run's resident memory is mostly its imports and its log.
 _EXPORTS = {
     "drake_contact.app.drawing": ("write_diagram",),
-    "drake_contact.app.metrics": ("compute_metrics",),
+    "drake_contact.scoring.metrics": ("compute_metrics",),
     "drake_contact.app.plotting": (
         "plot_force_tracking", "plot_impedance", "plot_signal", "plot_tip_errors"),
-    "drake_contact.app.runner": (
-        "AddSignalLoggers", "MakeRunDiagram", "RunResult", "SignalLoggers", "run", "simulate",
+    "drake_contact.app.runner": ("run",),
+    "drake_contact.simulation": (
+        "AddSignalLoggers", "MakeRunDiagram", "RunResult", "SignalLoggers", "simulate",
         "simulate_scenario"),
     "drake_contact.diagram": ("ContactStation", "MakeContactDiagram", "SeedNoise", "Signal"),
     "drake_contact.errors": ("ScenarioError", "SimulationDiverged"),

@@ -11,7 +11,7 @@ import pytest
 from drake_contact import ScenarioError, load_scenario
 from drake_contact.app.benchmark import (
     SCENARIO_CONTENDERS, SUITES, TASKS, Run, aggregate, contender_names, contender_scenario)
-from drake_contact.app.metrics import step_metrics
+from drake_contact.scoring.metrics import step_metrics
 
 
 def test_default_contenders_are_the_thesis_robust_and_installed_ones_but_push():

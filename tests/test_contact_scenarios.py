@@ -9,7 +9,7 @@ import json
 import pytest
 
 from conftest import ON_QUICK_REPRODUCTION
-from drake_contact.app.metrics import baseline_scenario
+from drake_contact.scoring.metrics import baseline_scenario
 from drake_contact.app.runner import run
 from drake_contact.scenario import load_scenario
 

@@ -11,7 +11,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
 import drake_contact
-from drake_contact.app.metrics import identification_metrics, identification_tracking
+from drake_contact.scoring.metrics import identification_metrics, identification_tracking
 from drake_contact.faults import ChainFaults, FaultClock, FaultConfig
 from drake_contact.identification.identifiers import IdentifierConfig
 from drake_contact.plant.compliant_wall import CompliantWall, EnvironmentConfig

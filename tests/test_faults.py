@@ -12,7 +12,7 @@ from pydrake.systems.primitives import ConstantVectorSource
 
 from drake_contact import ScenarioError, load_scenario
 from drake_contact.app.fault_study import CASES
-from drake_contact.app.runner import simulate_scenario
+from drake_contact.simulation import simulate_scenario
 from drake_contact.diagram import MakeContactDiagram, SeedNoise
 from drake_contact.faults import FAULT_KINDS, AddFault, FaultClock, FaultConfig
 from drake_contact.plant.compliant_wall import CompliantWall, EnvironmentConfig

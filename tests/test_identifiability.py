@@ -4,7 +4,7 @@ spectral line in the noise (which must not widen a low-frequency bound)."""
 
 import numpy as np
 
-from drake_contact.app.identifiability import fisher_information, identifiability_bound, noise_psd
+from drake_contact.scoring.identifiability import fisher_information, identifiability_bound, noise_psd
 
 RATE = 1000.0
 SIGMA = 0.7

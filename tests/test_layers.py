@@ -75,3 +75,12 @@ def test_the_walk_would_see_a_cycle_and_a_layer_breach(tmp_path, monkeypatch):
         test_the_library_never_imports_the_application()
     with pytest.raises(AssertionError, match="import cycle: drake_contact.a -> drake_contact.app.b"):
         test_no_import_cycle()
+
+
+def test_building_simulating_logging_and_scoring_a_run_are_library():
+    import drake_contact
+    for name in ("MakeContactDiagram", "AddSignalLoggers", "MakeRunDiagram", "simulate",
+                 "simulate_scenario", "RunResult", "compute_metrics"):
+        module = drake_contact._MODULE_OF[name]
+        assert not module.startswith("drake_contact.app"), (name, module)
+        assert getattr(drake_contact, name).__module__ == module

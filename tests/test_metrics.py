@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import drake_contact
-from drake_contact.app.metrics import (
+from drake_contact.scoring.metrics import (
     STABLE_RMSE_N, compute_metrics, identification_metrics, level_metrics, stability_metrics)
 from drake_contact.identification.identifiers import IdentifierConfig
 from drake_contact.scenario import ScoringConfig

@@ -24,8 +24,8 @@ from hypothesis import event, example, given, settings
 from hypothesis import strategies as st
 from pydrake.systems.analysis import Simulator
 
-from drake_contact.app.metrics import compute_metrics
-from drake_contact.app.runner import MakeRunDiagram, check_logs_fit
+from drake_contact.scoring.metrics import compute_metrics
+from drake_contact.simulation import MakeRunDiagram, check_logs_fit
 from drake_contact.control.baselines import AdmittanceConfig, ImpedanceConfig, ParallelForceConfig
 from drake_contact.control.hybrid_controller import CONTACT_LAWS as HYBRID_LAWS
 from drake_contact.control.nn_compensator import OUTPUT_LAYERS

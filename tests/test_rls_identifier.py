@@ -357,7 +357,7 @@ def test_rls_robust_is_within_5_percent_one_second_after_contact(stiffness, damp
     """Issue 16's bar for the best RLS at 1 s, on two walls (the grid is a
     sweep): identify_any's rls_robust, probing on, its K_e within 5 %."""
     from drake_contact import load_scenario, simulate_scenario
-    from drake_contact.app.metrics import compute_metrics
+    from drake_contact.scoring.metrics import compute_metrics
     scenario = load_scenario("identify_any", [
         f"environment.stiffness={stiffness}", f"environment.damping={damping}",
         f"simulation.seed={seed}", "simulation.duration=9.5"])

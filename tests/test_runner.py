@@ -58,8 +58,9 @@ def test_a_window_baseline_stops_after_the_scoring_window_and_scores_it(tmp_path
 
 def test_a_spooled_log_holds_a_bounded_buffer_and_gives_the_same_log_and_metrics(
         tmp_path, monkeypatch):
+    from drake_contact import simulation
     from drake_contact.app import runner
-    monkeypatch.setattr(runner, "SPOOL_BUFFER_SAMPLES", 37)  # many flushes, a partial last one
+    monkeypatch.setattr(simulation, "SPOOL_BUFFER_SAMPLES", 37)  # many flushes, a partial last one
     diagram, loggers = build()
     whole = dc.simulate(diagram, loggers)
 
@@ -68,7 +69,7 @@ def test_a_spooled_log_holds_a_bounded_buffer_and_gives_the_same_log_and_metrics
     spooled = dc.simulate(diagram, loggers)
     # Never more in memory than the buffer or one drain (a 0.1 s chunk here).
     assert len(loggers._times) == 101
-    assert isinstance(spooled.log, runner.SpooledLog)
+    assert isinstance(spooled.log, simulation.SpooledLog)
     assert sorted(spooled.log) == sorted(whole.log)
     for key in whole.log:
         assert spooled.log[key].shape == whole.log[key].shape, key
@@ -82,7 +83,7 @@ def test_a_spooled_log_holds_a_bounded_buffer_and_gives_the_same_log_and_metrics
     scenario = loggers.station.scenario
     result = runner.run(scenario, tmp_path / "run", figures=False)
     assert not (tmp_path / "run" / ".log_spool").exists()
-    assert isinstance(result.log, runner.NpzLog)
+    assert isinstance(result.log, simulation.NpzLog)
     with np.load(tmp_path / "run" / "log.npz") as npz:
         assert sorted(npz.keys()) == sorted(whole.log)
         for key in whole.log:
@@ -91,15 +92,15 @@ def test_a_spooled_log_holds_a_bounded_buffer_and_gives_the_same_log_and_metrics
 
 
 def test_a_spooled_log_is_cut_at_the_divergence_like_an_in_memory_one(tmp_path):
-    from drake_contact.app import runner
+    from drake_contact import simulation
     # The wall at the tip from the start, far too stiff: the force runs away
     # within 0.2 s (as in test_diagram's runaway test).
     scenario = dc.load_scenario("push_constant", ["environment.stiffness=1e9",
                                                   "controller.push.start_time=0"], seed=2)
-    in_memory = runner.simulate_scenario(scenario)
-    spooled = runner.simulate_scenario(scenario, spool=tmp_path / "spool")
+    in_memory = simulation.simulate_scenario(scenario)
+    spooled = simulation.simulate_scenario(scenario, spool=tmp_path / "spool")
     assert in_memory.status == spooled.status == "diverged"
     assert spooled.message == in_memory.message
-    assert isinstance(spooled.log, runner.SpooledLog)
+    assert isinstance(spooled.log, simulation.SpooledLog)
     for key in in_memory.log:
         np.testing.assert_array_equal(spooled.log[key], in_memory.log[key], err_msg=key)

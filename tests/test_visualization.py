@@ -16,9 +16,9 @@ from pydrake.geometry import MeshcatVisualizer
 from conftest import needs_tool
 from drake_contact.app.cli import main
 from drake_contact.diagram import MakeContactDiagram, leaf_systems
-from drake_contact.app.runner import MakeRunDiagram, simulate_scenario
+from drake_contact.simulation import MakeRunDiagram, simulate_scenario
 from drake_contact.scenario import load_scenario
-from drake_contact.app.visualization import ContactVisualizer, ContactVisualizerParams, new_meshcat
+from drake_contact.visualization import ContactVisualizer, ContactVisualizerParams, new_meshcat
 
 #: One worker runs this module and its fixture is session-scoped, so the fixture
 #: runs once (-n auto; docs/testing.md, "Shared runs").

@@ -33,7 +33,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
-from drake_contact.app.runner import MakeRunDiagram, simulate, simulate_scenario
+from drake_contact.simulation import MakeRunDiagram, simulate, simulate_scenario
 from drake_contact.diagram import MakeFloorDiagram, leaf_systems
 from drake_contact.errors import SimulationDiverged
 from drake_contact.plant.arm import AddArmPlant

@@ -200,7 +200,7 @@ def _cmd_bench(args):
 def _cmd_run(args):
     from drake_contact.app.runner import run, terminal_progress
     from drake_contact.scenario import load_scenario
-    from drake_contact.app.visualization import check_record_path, new_meshcat
+    from drake_contact.visualization import check_record_path, new_meshcat
     from drake_contact.app.drawing import check_diagram_path, write_diagram
     from drake_contact.diagram import MakeContactDiagram
     scenario = load_scenario(args.scenario, args.set, duration=args.duration, seed=args.seed)

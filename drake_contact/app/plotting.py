@@ -388,7 +388,7 @@ def plot_sensor_figures(log: dict, scenario, out_dir) -> list[Path]:
     from scipy import signal as sps
 
     from drake_contact.sensing.filters import rc_lowpass_analog
-    from drake_contact.app.spectra import welch_psd, windows
+    from drake_contact.scoring.spectra import welch_psd, windows
 
     out_dir = Path(out_dir)
     paths = []

@@ -1,6 +1,6 @@
 """Online identification in a run: several identifiers side by side, from
 the first contact switch (the thesis's Figs 6.1-6.9; scored by
-:mod:`drake_contact.app.metrics`).
+:mod:`drake_contact.scoring.metrics`).
 
 Each identifier is named; its estimate is logged as ``impedance_<name>``
 (N x 3: M_e, B_e, K_e) and scored in ``metrics.json`` as

@@ -31,7 +31,7 @@ data would allow it.
 
 import numpy as np
 
-from drake_contact.app.spectra import RATE_HZ, welch_psd, windows
+from drake_contact.scoring.spectra import RATE_HZ, welch_psd, windows
 from drake_contact.plant.arm import CONTROL_PERIOD, TIME_TOLERANCE_S
 
 #: Samples of rest noise and of contact needed for a bound.

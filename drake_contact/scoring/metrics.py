@@ -18,7 +18,7 @@ None where the truth is 0 or the log ends sooner).
 filtered force and the estimated displacement since the switch.
 ``identifiability_bound`` (runs with identifiers) is the Cramér-Rao bound on
 M_e, B_e, K_e from the run's contact samples (see
-:mod:`drake_contact.app.identifiability`): ``std`` and ``relative`` (to the
+:mod:`drake_contact.scoring.identifiability`): ``std`` and ``relative`` (to the
 truth), one standard deviation, what no unbiased identifier can beat;
 ``identifiability_bound_1s`` the same from the first second after the switch.
 
@@ -53,8 +53,8 @@ import copy
 
 import numpy as np
 
-from drake_contact.app.identifiability import identifiability_bound, noise_psd
-from drake_contact.app.spectra import sensor_metrics
+from drake_contact.scoring.identifiability import identifiability_bound, noise_psd
+from drake_contact.scoring.spectra import sensor_metrics
 from drake_contact.control.safety_supervisor import (
     CLAMPED, REFLEX, SAFETY_STATES, STOP_REASONS)
 from drake_contact.plant.arm import CONTROL_PERIOD, RATIO_TOLERANCE, TIME_TOLERANCE_S
