@@ -37,7 +37,8 @@ _EXPORTS = {
     "drake_contact.diagram": ("ContactStation", "MakeContactDiagram", "SeedNoise", "Signal"),
     "drake_contact.errors": ("ScenarioError", "SimulationDiverged"),
     "drake_contact.control.safety_supervisor": ("SafetyConfig", "SafetySupervisor"),
-    "drake_contact.faults": ("FAULT_KINDS", "AddFault", "FaultConfig"),
+    "drake_contact.faults": (
+        "FAULT_KINDS", "AddFault", "FaultConfig", "FaultKind", "StudyCase", "register_fault_kind"),
     "drake_contact.measured": ("MeasuredSignals",),
     "drake_contact.plant.arm": ("ApplySampledUpdates", "CalcSampledUpdate"),
     "drake_contact.plugins": (
@@ -74,6 +75,8 @@ __all__ = [
     "compute_metrics",
     # Faults and the safety supervisor (scenario keys faults: and safety:)
     "FaultConfig", "FAULT_KINDS", "AddFault", "SafetyConfig", "SafetySupervisor",
+    # A fault kind of your own: a FaultKind subclass under register_fault_kind
+    "FaultKind", "StudyCase", "register_fault_kind",
     # Plug-in controllers and identifiers (entry points; see drake_contact.plugins)
     "MakeController", "MakeIdentifier", "installed_controllers", "installed_identifiers",
     "ContactDetector",

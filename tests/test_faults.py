@@ -11,7 +11,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
 from drake_contact import ScenarioError, load_scenario
-from drake_contact.app.fault_study import CASES
+from drake_contact.app.fault_study import fault_cases
 from drake_contact.simulation import simulate_scenario
 from drake_contact.diagram import MakeContactDiagram, SeedNoise
 from drake_contact.faults import FAULT_KINDS, AddFault, FaultClock, FaultConfig
@@ -198,7 +198,7 @@ def _closed_loop(fault: dict, *, safety=True, duration=6.5, start=0.5, extra=())
 
 def _case(kind):
     """The fault study's case of this kind (not its null reference)."""
-    return next(fields for name, (_, fields) in CASES.items()
+    return next(fields for name, (_, fields) in fault_cases().items()
                 if fields["kind"] == kind and name != "none")
 
 
@@ -257,3 +257,60 @@ def test_a_50_ms_dropout_with_and_without_the_supervisor():
     assert any(e["state"] == "sensor-fault hold" for e in on.metrics["safety_events"])
     blind = off.metrics["faults"][0]
     assert blind["recovery_s"] is not None  # the thesis's nn recovers too, here
+
+
+def test_a_new_fault_kind_is_one_class_under_one_registration_line():
+    """The documented way to add a fault kind: a FaultKind subclass with
+    register_fault_kind on it. Scenario validation, the station's wiring,
+    the fault_active log, the fault metrics and the fault study follow."""
+    from pydrake.symbolic import if_then_else
+
+    from drake_contact import FaultKind, StudyCase, register_fault_kind
+    from drake_contact.faults import unregister_fault_kind
+
+    @register_fault_kind
+    class ForceDrift(FaultKind):
+        """The force reading drifts by magnitude N/s from the fault's start."""
+        name, signal, allowed = "toy_force_drift", "force", "drift in N/s, finite"
+        study_case = StudyCase("toy_drift", "the reading drifts by 5 N/s for 1 s",
+                               {"duration_s": 1.0, "magnitude": 5.0})
+
+        def magnitude_ok(self, m):
+            return math.isfinite(m)
+
+        def corrupt(self, law):
+            drift = law.fault.magnitude * (law.t - law.t0)
+            law.y = [v + if_then_else(law.on, drift, 0.0) for v in law.u]
+
+    try:
+        # Validated: a bad magnitude gets the kind's own words, in one line.
+        with pytest.raises(ScenarioError, match=r"^faults\[0\]\.magnitude = inf is out of "
+                                                r"range: toy_force_drift takes drift in N/s"):
+            load_scenario("push_constant", ["faults=[{kind: toy_force_drift, magnitude: .inf}]"])
+        # Wired, logged and scored. push_constant's push does not read the
+        # force, so the faulty reading differs from the clean run's by the
+        # drift alone, while the fault is on.
+        common = ["simulation.duration=1.6"]
+        clean = simulate_scenario(load_scenario("push_constant", common, seed=4))
+        fault = "{kind: toy_force_drift, start_s: 1.0, duration_s: 0.5, magnitude: 5.0}"
+        result = simulate_scenario(load_scenario("push_constant", common + [f"faults=[{fault}]"],
+                                                 seed=4))
+        t, active = result.log["t"], result.log["fault_active"][:, 0]
+        on = (t >= 1.0 - 1e-9) & (t < 1.5 - 1e-9)
+        assert active[on].min() == 1.0 and active[~on].max() == 0.0
+        drift = result.log["force_measured"] - clean.log["force_measured"]
+        np.testing.assert_allclose(drift[on], 5.0 * (t[on] - 1.0), rtol=0, atol=1e-9)
+        assert not drift[~on].any()
+        entry = result.metrics["faults"][0]
+        assert entry["kind"] == "toy_force_drift"
+        assert (entry["start_s"], entry["end_s"]) == pytest.approx((1.0, 1.5))
+        # Listed by the fault study, in the standard suite, with its fields.
+        cases = fault_cases()
+        assert cases["toy_drift"] == ("the reading drifts by 5 N/s for 1 s",
+                                      {"kind": "toy_force_drift", "duration_s": 1.0,
+                                       "magnitude": 5.0})
+        from drake_contact.app.fault_study import SUITES
+        assert "toy_drift" in SUITES["standard"].case_names
+    finally:
+        unregister_fault_kind("toy_force_drift")
+    assert "toy_drift" not in fault_cases()

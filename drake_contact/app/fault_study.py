@@ -6,7 +6,7 @@ without the safety supervisor: ``drake-contact faults``.
 
 Each run is one benchmark contender (:mod:`drake_contact.app.benchmark`:
 the suite's arm, sensor and DSP, the contender's controller) tracking the
-thesis's 20/10 N square wave on one wall, with one fault of :data:`CASES`
+thesis's 20/10 N square wave on one wall, with one fault of :func:`fault_cases`
 starting :data:`FAULT_START_S` after the first contact, once with the
 supervisor off and once on (``safety.enabled``, the limit
 :data:`FORCE_LIMIT_N`; the same limit says whether a run ended safe either
@@ -35,6 +35,7 @@ import yaml
 from drake_contact.app.benchmark import _write_csv, contender_names, contender_scenario
 from drake_contact.app.sweep import finished_metrics, run_points
 from drake_contact.errors import ScenarioError
+from drake_contact.faults import FAULT_KINDS
 
 #: The supervisor's limit in every run (N): twice the square wave's top level.
 FORCE_LIMIT_N = 40.0
@@ -42,40 +43,17 @@ FORCE_LIMIT_N = 40.0
 #: second 20 N level (5-7.5 s), 0.5 s after its step, so that a short
 #: fault's recovery is measured on 2 s of constant f_d, not on a step.
 FAULT_START_S = 5.5
-#: Fault case name -> (what it is, the fault's fields but its start).
-CASES = {
-    "none": ("no fault: the sensor's gain 1 for 2 s, an identity, scored as a fault is",
-             {"kind": "force_gain", "duration_s": 2.0, "magnitude": 1.0}),
-    "dropout_zero_50ms": ("the sensor reads 0 N for 50 ms",
-                          {"kind": "force_dropout_zero", "duration_s": 0.05}),
-    "dropout_hold_500ms": ("the reading freezes at its last value for 0.5 s",
-                           {"kind": "force_dropout_hold", "duration_s": 0.5}),
-    "spikes": ("30 N spikes at 50 Hz for 1 s",
-               {"kind": "force_spikes", "duration_s": 1.0, "magnitude": 30.0, "rate_hz": 50.0}),
-    "bias": ("the reading drops by 10 N for 2 s",
-             {"kind": "force_bias", "duration_s": 2.0, "magnitude": -10.0}),
-    "gain": ("the sensor's gain halves for 2 s",
-             {"kind": "force_gain", "duration_s": 2.0, "magnitude": 0.5}),
-    "saturation": ("the ADC clips at 15 N for 1 s",
-                   {"kind": "force_saturation", "duration_s": 1.0, "magnitude": 15.0}),
-    "missed_counts": ("joint 1's encoder misses 200 counts over 1 s",
-                      {"kind": "encoder_missed_counts", "duration_s": 1.0, "magnitude": 200.0,
-                       "joint": 0}),
-    "encoder_frozen": ("joint 2's reading freezes for 0.5 s",
-                       {"kind": "encoder_frozen", "duration_s": 0.5, "joint": 1}),
-    "retreat": ("the surface gives way by 5 mm for 0.5 s, then comes back",
-                {"kind": "surface_retreat", "duration_s": 0.5, "magnitude": 0.005}),
-    "surface_motion": ("the surface moves away at 10 mm/s for 1 s",
-                       {"kind": "surface_motion", "duration_s": 1.0, "magnitude": 0.01}),
-    "stiffness_step": ("K_e doubles for 1 s",
-                       {"kind": "stiffness_step", "duration_s": 1.0, "magnitude": 2.0}),
-    "stiffness_ramp": ("K_e ramps to 3 times over 2 s and stays",
-                       {"kind": "stiffness_ramp", "duration_s": 2.0, "magnitude": 3.0}),
-    "torque_limit": ("joint 1's torque limit drops to 2 N m for 1 s",
-                     {"kind": "torque_limit", "duration_s": 1.0, "magnitude": 2.0, "joint": 0}),
-    "motor_scale": ("joint 1's motor gives half its torque for 1 s",
-                    {"kind": "motor_scale", "duration_s": 1.0, "magnitude": 0.5, "joint": 0}),
-}
+def fault_cases() -> dict:
+    """Fault case name -> (what it is, the fault's fields but its start): a
+    null case, then each registered kind's own case (its ``study_case``)."""
+    cases = {"none": ("no fault: the sensor's gain 1 for 2 s, an identity, scored as a fault is",
+                      {"kind": "force_gain", "duration_s": 2.0, "magnitude": 1.0})}
+    for kind in FAULT_KINDS.values():
+        if kind.study_case is not None:
+            cases[kind.study_case.name] = (kind.study_case.description,
+                                           {"kind": kind.name} | kind.study_case.fields)
+    return cases
+
 #: The contenders by default: the thesis's hybrid (P only) and neural
 #: controllers and the robust ones.
 DEFAULT_CONTENDERS = ("hybrid", "nn", "nn_robust", "adaptive_hybrid")
@@ -86,17 +64,22 @@ SAFETY = ("off", "on")
 class Suite:
     # [K_e (N/m), B_e (N s/m)] per wall; wall i runs with noise seed i.
     walls: tuple
-    cases: tuple
+    # The fault cases by name; None: every case of fault_cases().
+    cases: tuple | None
     # Simulated time per run (s): the slowest approach touches at about
     # 8.3 s, then FAULT_START_S, the longest fault (2 s) and 2.5 s more.
     duration_s: float
+
+    @property
+    def case_names(self) -> tuple:
+        return tuple(fault_cases()) if self.cases is None else self.cases
 
 
 SUITES = {
     "quick": Suite(walls=((6000.0, 12.0),), cases=("none", "dropout_zero_50ms"),
                    duration_s=16.5),
     "standard": Suite(walls=((6000.0, 12.0), (25000.0, 90.0), (80000.0, 45.0)),
-                      cases=tuple(CASES), duration_s=18.5),
+                      cases=None, duration_s=18.5),
 }
 
 
@@ -115,7 +98,7 @@ class Run:
                 f"wall{self.wall}_K{self.stiffness:g}_B{self.damping:g}")
 
     def overrides(self, suite: Suite) -> list:
-        fault = {"start_s": FAULT_START_S, "start_from": "contact"} | CASES[self.case][1]
+        fault = {"start_s": FAULT_START_S, "start_from": "contact"} | fault_cases()[self.case][1]
         return ["force_reference.levels=[20.0, 10.0]", "force_reference.half_period_s=2.5",
                 f"environment.stiffness={self.stiffness}",
                 f"environment.damping={self.damping}",
@@ -126,7 +109,7 @@ class Run:
 
 
 def plan(contenders, suite: Suite) -> list:
-    return [Run(c, s, case, i, k, b) for c in contenders for s in SAFETY for case in suite.cases
+    return [Run(c, s, case, i, k, b) for c in contenders for s in SAFETY for case in suite.case_names
             for i, (k, b) in enumerate(suite.walls)]
 
 
@@ -214,14 +197,15 @@ def markdown(table, contenders, suite: Suite, wall_s=None) -> str:
         lines += [f"Ran in {wall_s:.0f} s.", ""]
     header = "| fault | " + " | ".join(f"{c} off | {c} on" for c in contenders) + " |"
     lines += [header, "|---|" + "---|" * (2 * len(contenders))]
-    for case in suite.cases:
+    cases = fault_cases()
+    for case in suite.case_names:
         cells = []
         for contender in contenders:
             for safety in SAFETY:
                 e = next(e for e in table if (e["fault"], e["contender"], e["safety"])
                          == (case, contender, safety))
                 cells.append(_cell(e))
-        lines.append(f"| {case}: {CASES[case][0]} | " + " | ".join(cells) + " |")
+        lines.append(f"| {case}: {cases[case][0]} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -259,14 +243,14 @@ def run_fault_study(out_dir, *, contenders=None, suite="standard", workers=None,
     batch = run_points(todo, workers=workers, scheduler=scheduler, progress=progress)
     wall = time.perf_counter() - start
     rows = [score_run(r, out / "runs" / r.path) for r in runs]
-    table = aggregate(rows, names, spec.cases)
+    table = aggregate(rows, names, spec.case_names)
     _write_csv(rows, out / "runs.csv", ["contender", "safety", "fault", "wall", "status"])
     _write_csv(table, out / "faults.csv", ["fault", "contender", "safety", "runs"])
     (out / "faults.md").write_text(markdown(
         table, names, spec, wall_s=wall if todo and not batch.interrupted else None))
     (out / "faults.yaml").write_text(yaml.safe_dump(
         {"suite": suite, "force_limit_n": FORCE_LIMIT_N, "fault_start_s": FAULT_START_S,
-         "cases": {c: CASES[c][1] for c in spec.cases},
+         "cases": {c: fault_cases()[c][1] for c in spec.case_names},
          "contenders": {n: scenarios[n] for n in names},
          "walls": [list(w) for w in spec.walls]}, sort_keys=False))
     return FaultStudyResult(rows, table, wall, ran=len(batch.timings),

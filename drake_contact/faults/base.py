@@ -29,31 +29,19 @@ its own contact detection does. The spike train draws from a
 station's noise (:func:`drake_contact.diagram.SeedNoise`): same scenario and
 seed, same spikes.
 
-What ``magnitude`` means, per kind (:data:`FAULT_KINDS`):
-
-    force_dropout_zero     (unused, 0) the reading is 0 N
-    force_dropout_hold     (unused, 0) the reading stays at its last value
-    force_spikes           spike height (N), sign random, at ``rate_hz`` on average
-    force_bias             offset added to the reading (N)
-    force_gain             factor on the reading (a gain change)
-    force_saturation       the ADC clips the reading to +-magnitude (N)
-    encoder_missed_counts  counts the joint's encoder misses, evenly over the
-                           fault (the reading stays off by them afterwards)
-    encoder_frozen         (unused, 0) the joint's reading stays at its last value
-    surface_retreat        the surface moves away from the arm by this (m), back at the end
-    surface_motion         the surface moves along +x at this speed (m/s) during the fault
-    stiffness_step         factor on K_e during the fault
-    stiffness_ramp         K_e ramps to this factor over the fault and stays
-    torque_limit           the joint's torque limit drops to this (N m)
-    motor_scale            factor on the joint's motor torque
+A kind of fault is one :class:`FaultKind` subclass registered with
+:func:`register_fault_kind` (the built-in ones are in
+:mod:`drake_contact.faults.builtin`): its signal, what ``magnitude`` means
+and its allowed range, the check of that range, its expressions, and the
+fault study's case of it. Scenario validation, the station's wiring, the
+``fault_active`` log and the fault study follow from the registration.
 """
 
 import dataclasses as dc
 import math
 
 import numpy as np
-from pydrake.symbolic import Variable, floor, if_then_else, logical_and
-from pydrake.symbolic import max as sym_max, min as sym_min
+from pydrake.symbolic import Variable, if_then_else, logical_and
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import (
     Demultiplexer, Multiplexer, RandomSource, SymbolicVectorSystem)
@@ -64,25 +52,72 @@ from drake_contact.control.hybrid_controller import CONTACT_THRESHOLD_N
 from drake_contact.errors import ScenarioError
 from drake_contact.plant.arm import CONTROL_PERIOD, TIME_TOLERANCE_S
 
-#: Each kind: (signal it corrupts, what magnitude means and its allowed range).
-FAULT_KINDS = {
-    "force_dropout_zero": ("force", "unused: 0"),
-    "force_dropout_hold": ("force", "unused: 0"),
-    "force_spikes": ("force", "spike height in N, finite and != 0"),
-    "force_bias": ("force", "offset in N, finite"),
-    "force_gain": ("force", "factor in [0, 100]"),
-    "force_saturation": ("force", "clip level in N, > 0"),
-    "encoder_missed_counts": ("encoders", "counts missed, finite, |.| <= 1e6"),
-    "encoder_frozen": ("encoders", "unused: 0"),
-    "surface_retreat": ("surface", "displacement away from the arm in m, |.| <= 0.1"),
-    "surface_motion": ("surface", "speed along +x in m/s, |.| <= 1"),
-    "stiffness_step": ("stiffness", "factor on K_e in (0, 100]"),
-    "stiffness_ramp": ("stiffness", "final factor on K_e in (0, 100]"),
-    "torque_limit": ("drive", "torque limit in N m, >= 0"),
-    "motor_scale": ("drive", "factor on the motor torque in [-10, 10]"),
-}
+#: The signals a fault can corrupt, where the station puts them: the DSP's
+#: force reading, the counted joint angles, the tip state the wall sees,
+#: the wall's K_e scale, the saturated torque into the motors.
+SIGNALS = ("force", "encoders", "surface", "stiffness", "drive")
 
 START_FROM = ("time", "contact")
+
+
+@dc.dataclass(frozen=True)
+class StudyCase:
+    """The fault study's case of a kind: its name in the study's tables,
+    what it does in words, and the fault's fields but its kind and start."""
+
+    name: str
+    description: str
+    fields: dict
+
+
+class FaultKind:
+    """One kind of fault. A subclass sets the class attributes and
+    :meth:`corrupt`, and :func:`register_fault_kind` makes it a kind that
+    scenarios can name (``faults: [{kind: <name>, ...}]``).
+
+    ``name``: the kind's name in scenarios. ``signal``: one of
+    :data:`SIGNALS`. ``allowed``: what ``magnitude`` means and its allowed
+    range, in the words of the error a bad one gets. ``spreads``: the kind
+    spreads over its duration, which must then be finite. ``needs_noise``:
+    its law reads two uniform draws per sample (inputs ``draw`` and
+    ``sign``). ``study_case``: the fault study's :class:`StudyCase`, or None."""
+
+    name: str = ""
+    signal: str = ""
+    allowed: str = ""
+    spreads: bool = False
+    needs_noise: bool = False
+    study_case: StudyCase | None = None
+
+    def magnitude_ok(self, m: float) -> bool:
+        """Whether ``m`` is in the allowed range."""
+        raise NotImplementedError
+
+    def corrupt(self, law: "FaultLaw"):
+        """Sets ``law.y`` (the corrupted signal, expressions of ``law.u``,
+        ``law.on``, ``law.t``, ``law.t0``, ``law.fault``), and any state
+        with its update in ``law.state`` and ``law.dynamics``."""
+        raise NotImplementedError
+
+
+#: The registered kinds by name, in registration order.
+FAULT_KINDS: dict[str, FaultKind] = {}
+
+
+def register_fault_kind(cls):
+    """Registers the FaultKind subclass ``cls`` (a class decorator)."""
+    kind = cls()
+    if not kind.name or kind.signal not in SIGNALS:
+        raise ValueError(f"fault kind {cls.__name__}: set name and a signal of {SIGNALS}")
+    if kind.name in FAULT_KINDS:
+        raise ValueError(f"fault kind '{kind.name}' is already registered")
+    FAULT_KINDS[kind.name] = kind
+    return cls
+
+
+def unregister_fault_kind(name):
+    """Removes a registered kind (for tests that register a toy one)."""
+    del FAULT_KINDS[name]
 
 
 @dc.dataclass
@@ -121,32 +156,17 @@ class FaultConfig:
             bad("joint", self.joint, "must be 0, 1 or 2")
         if not (math.isfinite(self.rate_hz) and 0 < self.rate_hz <= 1000):
             bad("rate_hz", self.rate_hz, "must be in (0, 1000] Hz")
-        m = self.magnitude
-        allowed = FAULT_KINDS[self.kind][1]
-        ok = {
-            "force_dropout_zero": m == 0, "force_dropout_hold": m == 0, "encoder_frozen": m == 0,
-            "force_spikes": math.isfinite(m) and m != 0,
-            "force_bias": math.isfinite(m),
-            "force_gain": 0 <= m <= 100,
-            "force_saturation": math.isfinite(m) and m > 0,
-            "encoder_missed_counts": math.isfinite(m) and abs(m) <= 1e6,
-            "surface_retreat": abs(m) <= 0.1,
-            "surface_motion": abs(m) <= 1,
-            "stiffness_step": 0 < m <= 100, "stiffness_ramp": 0 < m <= 100,
-            "torque_limit": math.isfinite(m) and m >= 0,
-            "motor_scale": -10 <= m <= 10,
-        }[self.kind]
-        if not ok:
-            bad("magnitude", m, f"{self.kind} takes {allowed}")
-        if self.kind in ("encoder_missed_counts", "stiffness_ramp") \
-                and not math.isfinite(self.duration_s):
+        kind = FAULT_KINDS[self.kind]
+        if not kind.magnitude_ok(self.magnitude):
+            bad("magnitude", self.magnitude, f"{self.kind} takes {kind.allowed}")
+        if kind.spreads and not math.isfinite(self.duration_s):
             bad("duration_s", self.duration_s, f"{self.kind} spreads over its duration: "
                 "must be finite")
 
     @property
     def signal(self) -> str:
-        """The signal it corrupts: force, encoders, surface, stiffness or drive."""
-        return FAULT_KINDS[self.kind][0]
+        """The signal it corrupts: one of :data:`SIGNALS`."""
+        return FAULT_KINDS[self.kind].signal
 
 
 def validate_faults(faults):
@@ -167,70 +187,44 @@ def _window(fault: FaultConfig, t, contact_time):
     return on, t0
 
 
+class FaultLaw:
+    """A fault's expressions while its kind writes them: the time ``t``, the
+    signal ``u`` (a list of Variables), ``on`` (the fault is active), its
+    start ``t0``, the ``fault`` (its FaultConfig), and the kind's results:
+    ``y`` (starts as ``u``), ``state`` and ``dynamics`` (start empty).
+    ``lsb``: an encoder fault's joint's angle per count (rad)."""
+
+    def __init__(self, fault: FaultConfig, size: int, counts_per_revolution=None):
+        self.fault = fault
+        self.t = Variable("t")
+        self.u = [Variable(f"u_{i}") for i in range(size)]
+        self.contact_time = Variable("contact_time")
+        self.inputs = self.u + [self.contact_time]
+        self.on, self.t0 = _window(fault, self.t, self.contact_time)
+        self.y = list(self.u)
+        self.state, self.dynamics = [], []
+        self.lsb = (None if counts_per_revolution is None
+                    else 2 * np.pi / counts_per_revolution[fault.joint])
+
+    def noise(self):
+        """The two uniform draws of this sample, as inputs (needs_noise)."""
+        draw, sign = Variable("draw"), Variable("sign")
+        self.inputs += [draw, sign]
+        return draw, sign
+
+
 def _fault_law(fault: FaultConfig, size: int, counts_per_revolution=None):
     """The fault as expressions: returns (kwargs for SymbolicVectorSystem,
     needs_noise). Input: [signal (size), contact_time, (noise 2)]; output:
     [corrupted signal (size), active]."""
-    t = Variable("t")
-    u = [Variable(f"u_{i}") for i in range(size)]
-    tc = Variable("contact_time")
-    inputs = u + [tc]
-    on, t0 = _window(fault, t, tc)
-    active = if_then_else(on, 1.0, 0.0)
-    m = fault.magnitude
-    kind = fault.kind
-    state, dynamics = [], []
-    y = list(u)
-    j = fault.joint
-    if kind == "force_dropout_zero":
-        y = [if_then_else(on, 0.0, v) for v in u]
-    elif kind in ("force_dropout_hold", "encoder_frozen"):
-        # held: the last value before the fault, kept while it is on.
-        idx = range(size) if kind == "force_dropout_hold" else [j]
-        held = {i: Variable(f"held_{i}") for i in idx}
-        state = list(held.values())
-        dynamics = [if_then_else(on, held[i], u[i]) for i in idx]
-        for i in idx:
-            y[i] = if_then_else(on, held[i], u[i])
-    elif kind == "force_spikes":
-        draw, sign = Variable("draw"), Variable("sign")
-        inputs += [draw, sign]
-        p = fault.rate_hz * CONTROL_PERIOD
-        spike = if_then_else(logical_and(on, draw < p),
-                             if_then_else(sign < 0.5, -m, m), 0.0)
-        y = [v + spike for v in u]
-    elif kind == "force_bias":
-        y = [v + if_then_else(on, m, 0.0) for v in u]
-    elif kind == "force_gain":
-        y = [if_then_else(on, m * v, v) for v in u]
-    elif kind == "force_saturation":
-        y = [if_then_else(on, sym_min(sym_max(v, -m), m), v) for v in u]
-    elif kind == "encoder_missed_counts":
-        lsb = 2 * np.pi / counts_per_revolution[j]
-        done = sym_min(sym_max((t - t0) / fault.duration_s, 0.0), 1.0)
-        # Counts missed so far; 0 before the start (t0 may be inf).
-        missed = if_then_else(t >= t0 - TIME_TOLERANCE_S, floor(m * done + 0.5), 0.0)
-        y[j] = u[j] - missed * lsb
-    elif kind == "surface_retreat":
-        # The wall sees the tip moved back by the retreat: x - shift.
-        y[0] = u[0] - if_then_else(on, m, 0.0)
-    elif kind == "surface_motion":
-        travelled = if_then_else(t >= t0 - TIME_TOLERANCE_S, sym_min(t - t0, fault.duration_s), 0.0)
-        y[0] = u[0] - m * sym_max(travelled, 0.0)
-    elif kind == "stiffness_step":
-        y = [if_then_else(on, m * u[0], u[0])]
-    elif kind == "stiffness_ramp":
-        done = if_then_else(t >= t0 - TIME_TOLERANCE_S,
-                            sym_min(sym_max((t - t0) / fault.duration_s, 0.0), 1.0), 0.0)
-        y = [u[0] * (1.0 + (m - 1.0) * done)]
-    elif kind == "torque_limit":
-        y[j] = if_then_else(on, sym_min(sym_max(u[j], -m), m), u[j])
-    elif kind == "motor_scale":
-        y[j] = if_then_else(on, m * u[j], u[j])
-    kwargs = dict(time=t, input=inputs, output=y + [active])
-    if state:
-        kwargs.update(state=state, dynamics=dynamics, time_period=CONTROL_PERIOD)
-    return kwargs, kind == "force_spikes"
+    kind = FAULT_KINDS[fault.kind]
+    law = FaultLaw(fault, size, counts_per_revolution)
+    kind.corrupt(law)
+    active = if_then_else(law.on, 1.0, 0.0)
+    kwargs = dict(time=law.t, input=law.inputs, output=law.y + [active])
+    if law.state:
+        kwargs.update(state=law.state, dynamics=law.dynamics, time_period=CONTROL_PERIOD)
+    return kwargs, kind.needs_noise
 
 
 def AddFault(builder: DiagramBuilder, fault: FaultConfig, size: int, name: str, *,

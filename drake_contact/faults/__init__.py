@@ -1,0 +1,15 @@
+"""Injected faults (:mod:`.base`: the scenario's ``faults:`` list, the
+systems that corrupt a signal, the contact clock; :mod:`.builtin`: the
+built-in kinds). A new kind is a :class:`FaultKind` subclass with
+:func:`register_fault_kind` on it."""
+
+import drake_contact.faults.builtin  # noqa: F401 - registers the built-in kinds
+from drake_contact.faults.base import (
+    CONTACT_CLOCK_FORCE_N, FAULT_KINDS, SIGNALS, START_FROM, AddFault, ChainFaults, FaultClock,
+    FaultConfig, FaultKind, FaultLaw, StudyCase, register_fault_kind, unregister_fault_kind,
+    validate_faults)
+
+__all__ = [
+    "CONTACT_CLOCK_FORCE_N", "FAULT_KINDS", "SIGNALS", "START_FROM", "AddFault", "ChainFaults",
+    "FaultClock", "FaultConfig", "FaultKind", "FaultLaw", "StudyCase", "register_fault_kind",
+    "unregister_fault_kind", "validate_faults"]
