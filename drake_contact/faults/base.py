@@ -3,26 +3,23 @@ misbehaves for a while, scripted in the scenario's ``faults:`` list.
 
 Each fault is its own small system on the signal it corrupts, inserted by
 :func:`drake_contact.diagram.MakeContactDiagram` only when the scenario lists
-faults (a scenario without them builds the same diagram as before):
+faults (a scenario without faults has no fault systems). The signals
+(:data:`SIGNALS`):
 
-    force sensor   the DSP's reading after ADC and tare, before the 120 Hz
-                   filter (N): force_dropout_zero, force_dropout_hold,
-                   force_spikes, force_bias, force_gain, force_saturation
-    encoders       the counted joint angles into the estimator (rad):
-                   encoder_missed_counts, encoder_frozen
-    environment    the wall: surface_retreat and surface_motion shift the
-                   surface along x (the tip state the wall sees), and
-                   stiffness_step and stiffness_ramp scale K_e (the wall's
-                   stiffness_scale input)
-    drive          the saturated torque into the motors (N m):
-                   torque_limit, motor_scale
+    force       the DSP's reading after ADC and tare, before the 120 Hz
+                filter (N)
+    encoders    the counted joint angles into the estimator (rad)
+    surface     the tip state the wall sees (a shift of the surface along x)
+    stiffness   the wall's stiffness_scale input (a factor on K_e)
+    drive       the saturated torque into the motors (N m)
 
 Every fault system is a Drake ``SymbolicVectorSystem`` (no Python runs per
 step): its output is the corrupted signal and a 0/1 ``active`` flag, the
 station logs the flags as ``fault_active`` (one column per fault). A fault
 starts at ``start_s`` after t = 0, or after the first contact
 (``start_from: contact``): the first 1 ms sample at which the true normal
-force is above 5 N (the thesis's switch level), read by the :class:`FaultClock` from the wall, so a
+force is above 5 N (the thesis's switch level), read by the
+:class:`FaultClock` from the wall, so a
 scripted fault hits every controller at the same physical moment whatever
 its own contact detection does. The spike train draws from a
 ``RandomSource`` named for the fault, seeded with the rest of the
