@@ -47,9 +47,11 @@ class Layout:
         self._fields = {}
         offset = 0
         for name, size in fields:
-            if name in self._fields or not name.isidentifier() or size < 1:
+            if (name in self._fields or not name.isidentifier() or name.startswith("_")
+                    or hasattr(Layout, name) or name in ("size", "sizes") or size < 1):
                 raise ValueError(f"Layout field {name!r} of size {size}: names must be "
-                                 "unique identifiers and sizes at least 1")
+                                 "unique identifiers, not _private nor the layout's own "
+                                 "(size, sizes, span, names), and sizes at least 1")
             self._fields[name] = (offset, size)
             setattr(self, name, offset if size == 1 else slice(offset, offset + size))
             offset += size

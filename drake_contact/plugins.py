@@ -43,7 +43,7 @@ from pydrake.systems.framework import (
     BasicVector, Diagram, DiagramBuilder, LeafSystem, PortDataType, System)
 from pydrake.systems.primitives import Demultiplexer
 
-from drake_contact.control.hybrid_controller import CONTACT_THRESHOLD_N
+from drake_contact.constants import CONTACT_THRESHOLD_N
 from drake_contact.errors import ScenarioError
 from drake_contact.plant.arm import DeclareSampledUpdate, is_sample_time
 

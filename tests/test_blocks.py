@@ -20,7 +20,8 @@ def test_layout_offsets_follow_the_sizes():
     assert v[layout.info].tolist() == [4, 5, 6, 7] and v[layout.mode] == 3
 
 
-@pytest.mark.parametrize("fields", [(("a", 1), ("a", 2)), (("a", 0),), (("not a name", 1),)])
+@pytest.mark.parametrize("fields", [(("a", 1), ("a", 2)), (("a", 0),), (("not a name", 1),),
+                                    (("size", 1),), (("span", 2),), (("_fields", 1),)])
 def test_layout_refuses_bad_fields(fields):
     with pytest.raises(ValueError, match="Layout field"):
         Layout(*fields)

@@ -314,3 +314,64 @@ def test_a_new_fault_kind_is_one_class_under_one_registration_line():
     finally:
         unregister_fault_kind("toy_force_drift")
     assert "toy_drift" not in fault_cases()
+
+
+def test_the_registry_refuses_a_taken_name_or_case_and_takes_a_class_again():
+    from drake_contact import FaultKind, StudyCase, register_fault_kind
+    from drake_contact.faults import unregister_fault_kind
+
+    def make(name, case):
+        class Toy(FaultKind):
+            signal, allowed = "force", "finite"
+            study_case = StudyCase(case, "a toy", {}) if case else None
+
+            def magnitude_ok(self, m):
+                return math.isfinite(m)
+
+            def corrupt(self, law):
+                pass
+        Toy.name = name
+        return Toy
+
+    with pytest.raises(ValueError, match="'force_bias' is already registered"):
+        register_fault_kind(make("force_bias", None))
+    with pytest.raises(ValueError, match="study case name 'spikes' is taken"):
+        register_fault_kind(make("toy_a", "spikes"))
+    with pytest.raises(ValueError, match="study case name 'none' is taken"):
+        register_fault_kind(make("toy_a", "none"))
+    toy = make("toy_a", "toy_case")
+    try:
+        register_fault_kind(toy)
+        register_fault_kind(toy)  # a module or notebook cell run twice
+        assert isinstance(FAULT_KINDS["toy_a"], toy)
+    finally:
+        unregister_fault_kind("toy_a")
+
+
+def test_another_packages_fault_kind_registers_through_its_entry_point(tmp_path):
+    """A package's kind is in every process that imports drake_contact.faults
+    (the Dask workers too): its module is named under the entry-point group."""
+    import os
+    import subprocess
+    import sys
+    (tmp_path / "toy_kinds.py").write_text(
+        "from drake_contact.faults import FaultKind, register_fault_kind\n"
+        "@register_fault_kind\n"
+        "class Stuck(FaultKind):\n"
+        "    name, signal, allowed = 'toy_stuck', 'force', 'unused: 0'\n"
+        "    def magnitude_ok(self, m):\n"
+        "        return m == 0\n"
+        "    def corrupt(self, law):\n"
+        "        law.y = [0.0 * v for v in law.u]\n")
+    info = tmp_path / "toy_kinds-1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: toy-kinds\nVersion: 1.0\n")
+    (info / "entry_points.txt").write_text("[drake_contact.fault_kinds]\ntoy = toy_kinds\n")
+    code = ("import drake_contact.faults as f; "
+            "from drake_contact import load_scenario; "
+            "s = load_scenario('push_constant', ['faults=[{kind: toy_stuck}]']); "
+            "print(list(f.FAULT_KINDS)[-1], s.faults[0].signal)")
+    path = os.pathsep.join([str(tmp_path)] + [p for p in [os.environ.get("PYTHONPATH")] if p])
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env={**os.environ, "PYTHONPATH": path}, check=True).stdout.split()
+    assert out == ["toy_stuck", "force"]

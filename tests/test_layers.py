@@ -1,6 +1,7 @@
 """The architecture, checked on the source: the library (plant, sensing,
-control, identification, and the scenario, diagram and interface modules)
-never imports the application (drake_contact.app), and no module imports
+control, identification, scoring, faults, and the scenario, diagram,
+simulation, visualization and interface modules) never imports the
+application (drake_contact.app), and no module imports
 itself back through others, at module level or inside a function."""
 
 import ast

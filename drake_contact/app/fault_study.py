@@ -35,7 +35,7 @@ import yaml
 from drake_contact.app.benchmark import _write_csv, contender_names, contender_scenario
 from drake_contact.app.sweep import finished_metrics, run_points
 from drake_contact.errors import ScenarioError
-from drake_contact.faults import FAULT_KINDS
+from drake_contact.faults import FAULT_KINDS, NULL_CASE
 
 #: The supervisor's limit in every run (N): twice the square wave's top level.
 FORCE_LIMIT_N = 40.0
@@ -46,7 +46,7 @@ FAULT_START_S = 5.5
 def fault_cases() -> dict:
     """Fault case name -> (what it is, the fault's fields but its start): a
     null case, then each registered kind's own case (its ``study_case``)."""
-    cases = {"none": ("no fault: the sensor's gain 1 for 2 s, an identity, scored as a fault is",
+    cases = {NULL_CASE: ("no fault: the sensor's gain 1 for 2 s, an identity, scored as a fault is",
                       {"kind": "force_gain", "duration_s": 2.0, "magnitude": 1.0})}
     for kind in FAULT_KINDS.values():
         if kind.study_case is not None:

@@ -47,7 +47,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path, PurePosixPath
 
-from drake_contact.tolerances import RATIO_TOLERANCE
+from drake_contact.constants import RATIO_TOLERANCE
 
 
 @dc.dataclass

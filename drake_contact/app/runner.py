@@ -25,6 +25,7 @@ from drake_contact.scoring.metrics import baseline_scenario
 from drake_contact.simulation import NpzLog, RunResult, save_log, simulate_scenario
 from drake_contact.visualization import check_record_path
 
+
 def run(scenario: Scenario, out_dir, *, progress=None, figures=True,
         baseline=None, meshcat=None, record=None, realtime_rate=0.0) -> RunResult:
     """Simulates ``scenario`` and writes scenario.yaml, log.npz, metrics.json

@@ -75,7 +75,8 @@ from pydrake.systems.primitives import Demultiplexer
 
 from drake_contact.blocks import Layout
 from drake_contact.control.controller_model import ArmModel, ControllerModelConfig
-from drake_contact.control.hybrid_controller import CONTACT_THRESHOLD_N, read_measured_state
+from drake_contact.constants import CONTACT_THRESHOLD_N
+from drake_contact.control.hybrid_controller import read_measured_state
 from drake_contact.errors import ScenarioError
 from drake_contact.plant.arm import (
     CONTROL_PERIOD, TIME_TOLERANCE_S, DeclareSampledUpdate, is_sample_time)

@@ -152,6 +152,7 @@ from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Demultiplexer
 
 from drake_contact.blocks import Layout
+from drake_contact.constants import CONTACT_THRESHOLD_N, RATIO_TOLERANCE
 from drake_contact.plant.arm import (
     CONTROL_PERIOD, LINK_LENGTHS, TIME_TOLERANCE_S, DeclareSampledUpdate, is_sample_time)
 from drake_contact.control.controller_model import ArmModel, ControllerModelConfig
@@ -160,11 +161,6 @@ from drake_contact.errors import ScenarioError, require_finite
 
 CONTACT_LAWS = ("hybrid", "decoupled")
 APPROACH, CONTACT = 0, 1
-
-#: The filtered force (N) above which the tip is in contact: the thesis's
-#: switch from approach to hybrid control (section 4.4; its code's 0.8 N is
-#: the `*_appendix_e` scenarios'). Every switch and contact clock defaults to it.
-CONTACT_THRESHOLD_N = 5.0
 
 
 @dc.dataclass
@@ -406,7 +402,7 @@ class HybridControlLaw(LeafSystem):
         if timer < a.hold_time_s - TIME_TOLERANCE_S:
             return x_d  # start_x at the start; the last target after a loss
         return a.first_target_x + a.step_m * np.floor((timer - a.hold_time_s) / a.step_period_s
-                                                      + TIME_TOLERANCE_S)
+                                                      + RATIO_TOLERANCE)
 
     def _calc_control(self, context, output):
         c = self._config

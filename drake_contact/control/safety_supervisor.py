@@ -52,7 +52,7 @@ from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Demultiplexer
 
 from drake_contact.blocks import Layout
-from drake_contact.control.hybrid_controller import CONTACT_THRESHOLD_N
+from drake_contact.constants import CONTACT_THRESHOLD_N
 from drake_contact.errors import ScenarioError
 from drake_contact.plant.arm import (
     CONTROL_PERIOD, TIME_TOLERANCE_S, DeclareSampledUpdate, is_sample_time)

@@ -45,7 +45,7 @@ from pydrake.systems.primitives import (
 from pydrake.common import RandomDistribution
 
 from drake_contact.blocks import AddSubdiagram
-from drake_contact.control.hybrid_controller import CONTACT_THRESHOLD_N
+from drake_contact.constants import CONTACT_THRESHOLD_N
 from drake_contact.errors import ScenarioError
 from drake_contact.plant.arm import CONTROL_PERIOD, TIME_TOLERANCE_S
 
@@ -75,15 +75,20 @@ class FaultKind:
     ``name``: the kind's name in scenarios. ``signal``: one of
     :data:`SIGNALS`. ``allowed``: what ``magnitude`` means and its allowed
     range, in the words of the error a bad one gets. ``spreads``: the kind
-    spreads over its duration, which must then be finite. ``needs_noise``:
-    its law reads two uniform draws per sample (inputs ``draw`` and
-    ``sign``). ``study_case``: the fault study's :class:`StudyCase`, or None."""
+    spreads over its duration, which must then be finite. ``study_case``:
+    the fault study's :class:`StudyCase`, or None. A law that needs
+    randomness reads two uniform draws per sample from
+    :meth:`FaultLaw.noise`.
+
+    A kind in another package registers in every process that loads
+    scenarios (the Dask workers of the fault study and the sweeps too) when
+    its module is named under the entry-point group
+    :data:`FAULT_KIND_GROUP`."""
 
     name: str = ""
     signal: str = ""
     allowed: str = ""
     spreads: bool = False
-    needs_noise: bool = False
     study_case: StudyCase | None = None
 
     def magnitude_ok(self, m: float) -> bool:
@@ -100,14 +105,33 @@ class FaultKind:
 #: The registered kinds by name, in registration order.
 FAULT_KINDS: dict[str, FaultKind] = {}
 
+#: The entry-point group whose modules are imported, registering their
+#: kinds, when drake_contact.faults is.
+FAULT_KIND_GROUP = "drake_contact.fault_kinds"
+
+#: The fault study's null case, which no kind's case may be named.
+NULL_CASE = "none"
+
 
 def register_fault_kind(cls):
-    """Registers the FaultKind subclass ``cls`` (a class decorator)."""
+    """Registers the FaultKind subclass ``cls`` (a class decorator). The
+    same class registered again (a module or notebook cell run twice)
+    replaces itself; another class may not take a registered name or study
+    case name."""
     kind = cls()
     if not kind.name or kind.signal not in SIGNALS:
         raise ValueError(f"fault kind {cls.__name__}: set name and a signal of {SIGNALS}")
-    if kind.name in FAULT_KINDS:
-        raise ValueError(f"fault kind '{kind.name}' is already registered")
+    key = (cls.__module__, cls.__qualname__)
+    old = FAULT_KINDS.get(kind.name)
+    if old is not None and (type(old).__module__, type(old).__qualname__) != key:
+        raise ValueError(f"fault kind '{kind.name}' is already registered by "
+                         f"{type(old).__module__}.{type(old).__qualname__}")
+    if kind.study_case is not None:
+        taken = {k.study_case.name for n, k in FAULT_KINDS.items()
+                 if k.study_case is not None and n != kind.name}
+        if kind.study_case.name == NULL_CASE or kind.study_case.name in taken:
+            raise ValueError(f"fault kind '{kind.name}': study case name "
+                             f"'{kind.study_case.name}' is taken")
     FAULT_KINDS[kind.name] = kind
     return cls
 
@@ -129,7 +153,7 @@ class FaultConfig:
     start_from: str = "time"
     # How long it lasts (s); .inf for the rest of the run.
     duration_s: float = 0.05
-    # Its size; units and meaning depend on the kind (module docstring).
+    # Its size; units and meaning depend on the kind (its class docstring).
     magnitude: float = 0.0
     # The joint (0, 1, 2) of an encoder or drive fault.
     joint: int = 0
@@ -202,11 +226,14 @@ class FaultLaw:
         self.state, self.dynamics = [], []
         self.lsb = (None if counts_per_revolution is None
                     else 2 * np.pi / counts_per_revolution[fault.joint])
+        self.noisy = False
 
     def noise(self):
-        """The two uniform draws of this sample, as inputs (needs_noise)."""
+        """The two uniform draws of this sample, as inputs: the fault's
+        system then gets a RandomSource of its own."""
         draw, sign = Variable("draw"), Variable("sign")
         self.inputs += [draw, sign]
+        self.noisy = True
         return draw, sign
 
 
@@ -221,7 +248,7 @@ def _fault_law(fault: FaultConfig, size: int, counts_per_revolution=None):
     kwargs = dict(time=law.t, input=law.inputs, output=law.y + [active])
     if law.state:
         kwargs.update(state=law.state, dynamics=law.dynamics, time_period=CONTROL_PERIOD)
-    return kwargs, kind.needs_noise
+    return kwargs, law.noisy
 
 
 def AddFault(builder: DiagramBuilder, fault: FaultConfig, size: int, name: str, *,

@@ -53,7 +53,6 @@ class ForceDropoutHold(FaultKind):
 class ForceSpikes(FaultKind):
     """Spikes of height magnitude (N), sign random, at ``rate_hz`` on average."""
     name, signal, allowed = "force_spikes", "force", "spike height in N, finite and != 0"
-    needs_noise = True
     study_case = StudyCase("spikes", "30 N spikes at 50 Hz for 1 s",
                            {"duration_s": 1.0, "magnitude": 30.0, "rate_hz": 50.0})
 

@@ -13,7 +13,7 @@ from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.systems.framework import DiagramBuilder
 
 from drake_contact.errors import ScenarioError
-from drake_contact.tolerances import RATIO_TOLERANCE, TIME_TOLERANCE_S
+from drake_contact.constants import RATIO_TOLERANCE, TIME_TOLERANCE_S
 from drake_contact.resources import arm_urdf_path
 
 #: Controller sample period (s): every controller runs at 1 kHz.

@@ -274,7 +274,8 @@ def adaptation_metrics(log: dict, t_contact: float, scoring) -> dict:
     width = scoring.rmse_window_s
 
     def rmse(start):
-        window = (t >= t_contact + start - TIME_TOLERANCE_S) & (t < t_contact + start + width - TIME_TOLERANCE_S)
+        window = ((t >= t_contact + start - TIME_TOLERANCE_S)
+                  & (t < t_contact + start + width - TIME_TOLERANCE_S))
         return float(np.sqrt(np.mean(error[window] ** 2)))
 
     span = t[-1] + CONTROL_PERIOD - t_contact  # logged time after the switch

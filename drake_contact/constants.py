@@ -1,4 +1,4 @@
-"""Tolerances on times and on ratios of times, named once.
+"""Constants used across the package, named once.
 
 This module imports nothing, so that the application's processes that only
 start and score runs can use them without loading pydrake.
@@ -13,3 +13,9 @@ TIME_TOLERANCE_S = 1e-9
 #: A ratio of two durations closer than this to a whole number is that
 #: number (windows in a span, cycles of a schedule, plant steps per sample).
 RATIO_TOLERANCE = 1e-9
+
+#: The filtered force (N) above which the tip is in contact: the thesis's
+#: switch from approach to hybrid control (section 4.4; its code's 0.8 N is
+#: the `*_appendix_e` scenarios'). Every switch defaults to it, and the
+#: faults' contact clock applies it to the true force.
+CONTACT_THRESHOLD_N = 5.0
