@@ -11,17 +11,20 @@ from drake_contact.faults.base import FaultKind, StudyCase, register_fault_kind
 from drake_contact.plant.arm import CONTROL_PERIOD, TIME_TOLERANCE_S
 
 
-def _unused(m):
-    return m == 0
+class _NoMagnitude(FaultKind):
+    """A kind whose magnitude is unused (0)."""
+    allowed = "unused: 0"
+
+    def magnitude_ok(self, m):
+        return m == 0
 
 
 @register_fault_kind
-class ForceDropoutZero(FaultKind):
+class ForceDropoutZero(_NoMagnitude):
     """The force reading is 0 N (magnitude unused, 0)."""
-    name, signal, allowed = "force_dropout_zero", "force", "unused: 0"
+    name, signal = "force_dropout_zero", "force"
     study_case = StudyCase("dropout_zero_50ms", "the sensor reads 0 N for 50 ms",
                            {"duration_s": 0.05})
-    magnitude_ok = staticmethod(_unused)
 
     def corrupt(self, law):
         law.y = [if_then_else(law.on, 0.0, v) for v in law.u]
@@ -38,12 +41,11 @@ def _hold(law, indices):
 
 
 @register_fault_kind
-class ForceDropoutHold(FaultKind):
+class ForceDropoutHold(_NoMagnitude):
     """The force reading stays at its last value (magnitude unused, 0)."""
-    name, signal, allowed = "force_dropout_hold", "force", "unused: 0"
+    name, signal = "force_dropout_hold", "force"
     study_case = StudyCase("dropout_hold_500ms", "the reading freezes at its last value for 0.5 s",
                            {"duration_s": 0.5})
-    magnitude_ok = staticmethod(_unused)
 
     def corrupt(self, law):
         _hold(law, range(len(law.u)))
@@ -132,12 +134,11 @@ class EncoderMissedCounts(FaultKind):
 
 
 @register_fault_kind
-class EncoderFrozen(FaultKind):
+class EncoderFrozen(_NoMagnitude):
     """The joint's reading stays at its last value (magnitude unused, 0)."""
-    name, signal, allowed = "encoder_frozen", "encoders", "unused: 0"
+    name, signal = "encoder_frozen", "encoders"
     study_case = StudyCase("encoder_frozen", "joint 2's reading freezes for 0.5 s",
                            {"duration_s": 0.5, "joint": 1})
-    magnitude_ok = staticmethod(_unused)
 
     def corrupt(self, law):
         _hold(law, [law.fault.joint])
