@@ -22,8 +22,8 @@ suite (:data:`SUITES`), one noise seed per wall. The walls of ``standard``
 spread over K_e 3.5-145 kN/m and B_e 11-280 N s/m, and none is a point the
 baselines or the robust schemes were tuned on.
 
-Each run is one point on the Dask sweep runner
-(:func:`drake_contact.app.sweep.run_points`), into
+Each run is one point of a campaign
+(:func:`drake_contact.app.campaign.run_campaign`, on Dask), into
 ``DIR/runs/<contender>/<task>/<wall>/``. Scores per run come from
 ``metrics.json`` (force RMSE in the scoring window, the worst 5 s window,
 overshoot and settling after each step of f_d, contact losses, y and phi
@@ -44,17 +44,14 @@ contact, B_e, M_e and the time to settle within 5 % of K_e
 """
 
 import base64
-import csv
 import dataclasses as dc
 import html
-import json
-import time
 from pathlib import Path
 
 import numpy as np
-import yaml
 
-from drake_contact.app.sweep import finished_metrics, run_points
+from drake_contact.app.campaign import (
+    Campaign, CampaignResult, Point, failure_message, finished_metrics, run_campaign, run_status)
 from drake_contact.errors import ScenarioError
 from drake_contact.plant.arm import TIME_TOLERANCE_S
 from drake_contact.plugins import installed_controllers, installed_identifiers
@@ -348,12 +345,8 @@ def score_run(run: Run, run_dir: Path, suite: Suite) -> dict:
            "seed": run.seed}
     metrics = finished_metrics(run_dir)
     if metrics is None:
-        failure = run_dir / "failure.json"
-        message = json.loads(failure.read_text())["message"] if failure.exists() else "not run"
-        return row | {"status": "failed", "message": message}
-    status = metrics["status"]
-    if status == "completed" and metrics.get("contact_losses"):
-        status = "lost_contact"
+        return row | {"status": "failed", "message": failure_message(run_dir) or "not run"}
+    status = run_status(metrics)
     if status == "completed" and metrics.get("contact_time_s") is None:
         status = "no_contact"
     row |= {"status": status, "message": metrics.get("message", "")}
@@ -428,15 +421,6 @@ def aggregate(rows, contenders, tasks) -> list:
     for entry in board:
         entry.pop("_bad", None)
     return board
-
-
-def _write_csv(rows, path: Path, first):
-    columns = list(first) + sorted({k for r in rows for k in r} - set(first))
-    with path.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=columns)
-        writer.writeheader()
-        for row in rows:
-            writer.writerow({k: "" if row.get(k) is None else row.get(k) for k in columns})
 
 
 def _fmt(value, digits=2):
@@ -552,75 +536,87 @@ def write_html(text_md: str, figures, path: Path):
                     "leaderboard</title></head><body>" + "\n".join(body) + "</body></html>\n")
 
 
-@dc.dataclass
-class BenchmarkResult:
-    rows: list
-    board: list
-    wall_s: float
-    ran: int
-    skipped: int
-    workers: int
-    interrupted: bool
-    identifier_board: list = dc.field(default_factory=list)
+class BenchmarkCampaign(Campaign):
+    """The benchmark as a campaign: a point per contender, task and wall (and
+    per task and wall for the identifiers' shared runs), scored into
+    runs.csv (identifiers.csv), ranked into leaderboard.csv
+    (identifier_leaderboard.csv); the report is leaderboard.md, .html and a
+    figure per task."""
+
+    name = "benchmark"
+    columns = {
+        "runs": ["contender", "task", "wall", "stiffness_n_per_m", "damping_n_s_per_m", "seed",
+                 "status", "message"],
+        "leaderboard": ["rank", "contender", "task", "runs", "runs_losing_contact",
+                        "runs_failed", "mean_rank", "force_rmse_n_median"],
+        "identifiers": ["identifier", "task", "wall", "stiffness_n_per_m", "damping_n_s_per_m",
+                        "seed", "status"],
+        "identifier_leaderboard": ["rank", "identifier", "task", "runs", "runs_settled_5pct",
+                                   "mean_rank"],
+    }
+
+    def __init__(self, suite="standard", contenders=None, identifiers=None):
+        if suite not in SUITES:
+            raise ScenarioError(f"--suite = {suite} is unknown: choose one of "
+                                f"{', '.join(SUITES)}")
+        self.suite_name, self.suite = suite, SUITES[suite]
+        self.contenders = contender_names(contenders)
+        self.identifiers = identifier_names(identifiers)
+        self.scenarios = {name: contender_scenario(name) for name in self.contenders}
+        self.runs = {r.path: r for r in plan(self.contenders, self.suite)}
+        self.id_runs = ({r.path: r for r in plan(["identifiers"], self.suite)}
+                        if self.identifiers else {})
+
+    def points(self):
+        points = [Point(r.path, self.scenarios[r.contender], tuple(r.overrides(self.suite)),
+                        r.seed) for r in self.runs.values()]
+        if self.identifiers:
+            scenario = identifier_scenario(self.identifiers)
+            points += [Point(r.path, scenario, tuple(r.overrides(self.suite)), r.seed)
+                       for r in self.id_runs.values()]
+        return points
+
+    def score(self, point, run_dir):
+        if point.name in self.id_runs:
+            return {"identifiers": score_identifiers(self.id_runs[point.name], run_dir,
+                                                     self.identifiers)}
+        return {"runs": [score_run(self.runs[point.name], run_dir, self.suite)]}
+
+    def aggregate(self, tables):
+        found = {"leaderboard": aggregate(tables["runs"], self.contenders, self.suite.tasks)}
+        if self.identifiers:
+            found["identifier_leaderboard"] = aggregate_identifiers(
+                tables["identifiers"], self.identifiers, self.suite.tasks)
+        return found
+
+    def resolved(self):
+        return {"suite": self.suite_name, "contenders": self.scenarios,
+                "tasks": {t: TASKS[t][1] for t in self.suite.tasks},
+                "walls": [list(w) for w in self.suite.walls]}
+
+    def report(self, out, result):
+        tables = result.tables
+        wall_s = result.startup_s + result.wall_s
+        text = markdown(tables["leaderboard"], self.suite_name, self.suite,
+                        wall_s=wall_s if result.ran and not result.interrupted else None,
+                        rows=tables["runs"])
+        if self.identifiers:
+            text += identifier_markdown(tables["identifier_leaderboard"], self.suite.tasks)
+        (out / "leaderboard.md").write_text(text)
+        figures = out / "figures"
+        figures.mkdir(exist_ok=True)
+        paths = []
+        for task in self.suite.tasks:
+            paths.append(figures / f"{task}.png")
+            task_figure(tables["runs"], self.contenders, task, paths[-1])
+        write_html(text, paths, out / "leaderboard.html")
 
 
 def run_benchmark(out_dir, *, contenders=None, identifiers=None, suite="standard", workers=None,
-                  scheduler=None, progress=None) -> BenchmarkResult:
+                  scheduler=None, progress=None) -> CampaignResult:
     """Runs the suite (the points not finished in ``out_dir`` before) and
     writes the leaderboard; ``identifiers`` ('all' or names) adds the
-    identifiers' runs and board."""
-    if suite not in SUITES:
-        raise ScenarioError(f"--suite = {suite} is unknown: choose one of {', '.join(SUITES)}")
-    spec = SUITES[suite]
-    names = contender_names(contenders)
-    id_names = identifier_names(identifiers)
-    out = Path(out_dir)
-    runs_dir = out / "runs"
-    runs = plan(names, spec)
-    scenarios = {name: contender_scenario(name) for name in names}
-    id_runs = plan(["identifiers"], spec) if id_names else []
-    points = [(r.path, scenarios[r.contender], r.overrides(spec), r.seed,
-               str(runs_dir / r.path), False) for r in runs]
-    if id_names:
-        id_scenario = identifier_scenario(id_names)
-        points += [(r.path, id_scenario, r.overrides(spec), r.seed, str(runs_dir / r.path),
-                    False) for r in id_runs]
-    todo = [p for p in points if finished_metrics(Path(p[4])) is None]
-    start = time.perf_counter()
-    batch = run_points(todo, workers=workers, scheduler=scheduler, progress=progress)
-    wall = time.perf_counter() - start
-    rows = [score_run(r, runs_dir / r.path, spec) for r in runs]
-    board = aggregate(rows, names, spec.tasks)
-    _write_csv(rows, out / "runs.csv", ["contender", "task", "wall", "stiffness_n_per_m",
-                                         "damping_n_s_per_m", "seed", "status", "message"])
-    _write_csv(board, out / "leaderboard.csv", ["rank", "contender", "task", "runs",
-                                                 "runs_losing_contact", "runs_failed",
-                                                 "mean_rank", "force_rmse_n_median"])
-    text = markdown(board, suite, spec, wall_s=wall if todo and not batch.interrupted else None,
-                    rows=rows)
-    id_board = []
-    if id_names:
-        id_rows = [row for r in id_runs for row in score_identifiers(r, runs_dir / r.path,
-                                                                      id_names)]
-        id_board = aggregate_identifiers(id_rows, id_names, spec.tasks)
-        _write_csv(id_rows, out / "identifiers.csv", ["identifier", "task", "wall",
-                                                       "stiffness_n_per_m", "damping_n_s_per_m",
-                                                       "seed", "status"])
-        _write_csv(id_board, out / "identifier_leaderboard.csv",
-                   ["rank", "identifier", "task", "runs", "runs_settled_5pct", "mean_rank"])
-        text += identifier_markdown(id_board, spec.tasks)
-    (out / "leaderboard.md").write_text(text)
-    figures = out / "figures"
-    figures.mkdir(exist_ok=True)
-    paths = []
-    for task in spec.tasks:
-        paths.append(figures / f"{task}.png")
-        task_figure(rows, names, task, paths[-1])
-    write_html(text, paths, out / "leaderboard.html")
-    (out / "benchmark.yaml").write_text(yaml.safe_dump(
-        {"suite": suite, "contenders": {n: scenarios[n] for n in names},
-         "tasks": {t: TASKS[t][1] for t in spec.tasks},
-         "walls": [list(w) for w in spec.walls]}, sort_keys=False))
-    return BenchmarkResult(rows, board, wall, ran=len(batch.timings),
-                           skipped=len(points) - len(todo), workers=batch.workers,
-                           interrupted=batch.interrupted, identifier_board=id_board)
+    identifiers' runs and board. The result's tables: ``runs``,
+    ``leaderboard`` (and ``identifiers``, ``identifier_leaderboard``)."""
+    return run_campaign(BenchmarkCampaign(suite, contenders, identifiers), out_dir,
+                        workers=workers, scheduler=scheduler, progress=progress)

@@ -92,7 +92,8 @@ def _build_parser():
     reproduce.add_argument("--out", required=True, help="output folder")
     reproduce.add_argument("--quick", action="store_true",
                            help="shorter long runs, no baselines (about 80 s on 2 cores)")
-    reproduce.add_argument("--jobs", type=int, help="processes at a time (default: one per core)")
+    reproduce.add_argument("--jobs", type=int,
+                           help="local Dask workers, runs at a time (default: one per core)")
     reproduce.add_argument("--seeds", default="0-2",
                            help="seeds to score every result on, e.g. 0-2 (default) or 0,5")
     commands.add_parser("list", help="list the bundled scenarios")
@@ -147,7 +148,7 @@ def _add_cluster_arguments(command):
 
 def _cmd_faults(args):
     from drake_contact.app.fault_study import SUITES, check_contenders, run_fault_study
-    from drake_contact.app.sweep import terminal_progress
+    from drake_contact.app.campaign import points_progress
     if args.workers is not None and args.workers < 1:
         raise ScenarioError(f"--workers = {args.workers} is out of range: must be >= 1")
     if args.suite not in SUITES:
@@ -157,11 +158,10 @@ def _cmd_faults(args):
     _check_out(args.out)
     result = run_fault_study(args.out, contenders=args.controllers, suite=args.suite,
                              workers=args.workers, scheduler=args.scheduler,
-                             progress=terminal_progress())
-    print(f"{result.ran + result.skipped} runs ({result.ran} now, {result.skipped} from before) in "
-          f"{result.wall_s:.0f} s on {result.workers} workers")
+                             progress=points_progress())
+    print(_campaign_line(result))
     for safety in ("off", "on"):
-        mine = [e for e in result.table if e["safety"] == safety]
+        mine = [e for e in result.tables["faults"] if e["safety"] == safety]
         runs = sum(e["runs"] - e["runs_failed"] for e in mine)
         print(f"supervisor {safety:3s}: {sum(e['runs_past_limit'] for e in mine)}/{runs} runs "
               f"more than 10 % over the limit, {sum(e['runs_recovered'] for e in mine)} recovered "
@@ -262,13 +262,14 @@ def _cmd_reproduce(args):
 
 
 def _cmd_sweep(args):
-    from drake_contact.app.sweep import load_sweep, run_sweep, summary_lines, terminal_progress
+    from drake_contact.app.campaign import points_progress
+    from drake_contact.app.sweep import load_sweep, run_sweep, summary_lines
     if args.workers is not None and args.workers < 1:
         raise ScenarioError(f"--workers = {args.workers} is out of range: must be >= 1")
     sweep = load_sweep(args.sweep, quick=args.quick)
     _check_out(args.out)
     result = run_sweep(sweep, args.out, workers=args.workers, scheduler=args.scheduler,
-                       progress=terminal_progress())
+                       progress=points_progress())
     for line in summary_lines(sweep, result):
         print(line)
     print(f"wrote {args.out}/results.csv and {args.out}/sweep.html")
@@ -278,7 +279,7 @@ def _cmd_sweep(args):
 def _cmd_benchmark(args):
     from drake_contact.app.benchmark import (
         SUITES, contender_names, identifier_names, run_benchmark)
-    from drake_contact.app.sweep import terminal_progress
+    from drake_contact.app.campaign import points_progress
     if args.workers is not None and args.workers < 1:
         raise ScenarioError(f"--workers = {args.workers} is out of range: must be >= 1")
     if args.suite not in SUITES:
@@ -290,16 +291,17 @@ def _cmd_benchmark(args):
     result = run_benchmark(args.out, contenders=args.controllers,
                            identifiers=args.identifiers, suite=args.suite,
                            workers=args.workers, scheduler=args.scheduler,
-                           progress=terminal_progress())
-    overall = sorted((e for e in result.board if e["task"] == "all"), key=lambda e: e["rank"])
-    print(f"{result.ran + result.skipped} runs ({result.ran} now, {result.skipped} from before) in "
-          f"{result.wall_s:.0f} s on {result.workers} workers")
+                           progress=points_progress())
+    overall = sorted((e for e in result.tables["leaderboard"] if e["task"] == "all"),
+                     key=lambda e: e["rank"])
+    print(_campaign_line(result))
     for e in overall:
         print(f"{e['rank']:3d}. {e['contender']:18s} mean task rank {e['mean_rank']:.2f}, "
               f"lost contact in {e['runs_losing_contact']}/{e['runs']} runs, median force RMSE "
               + (f"{e['force_rmse_n_median']:.2f} N" if e['force_rmse_n_median'] is not None
                  else "-"))
-    for e in sorted((e for e in result.identifier_board if e["task"] == "all"),
+    for e in sorted((e for e in result.tables.get("identifier_leaderboard", [])
+                     if e["task"] == "all"),
                     key=lambda e: e["rank"]):
         print(f"{e['rank']:3d}. identifier {e['identifier']:14s} K_e within 5 % in "
               f"{e['runs_settled_5pct']}/{e['runs']} runs, median |K_e error| "
@@ -307,6 +309,11 @@ def _cmd_benchmark(args):
                  if e['stiffness_abs_error_pct_median'] is not None else "-"))
     print(f"wrote {args.out}/leaderboard.md, leaderboard.csv and leaderboard.html")
     return EXIT_INTERRUPTED if result.interrupted else 0
+
+
+def _campaign_line(result) -> str:
+    return (f"{result.ran + result.skipped} runs ({result.ran} now, {result.skipped} from "
+            f"before) in {result.startup_s + result.wall_s:.0f} s on {result.workers} workers")
 
 
 def _check_out(path):

@@ -11,8 +11,8 @@ starting :data:`FAULT_START_S` after the first contact, once with the
 supervisor off and once on (``safety.enabled``, the limit
 :data:`FORCE_LIMIT_N`; the same limit says whether a run ended safe either
 way). The walls are points no controller was tuned on; wall i runs with
-noise seed i. Points run on the Dask sweep runner
-(:func:`drake_contact.app.sweep.run_points`) into
+noise seed i. Each run is one point of a campaign
+(:func:`drake_contact.app.campaign.run_campaign`, on Dask), into
 ``DIR/runs/<contender>/<safety>/<fault>/<wall>/``.
 
 Per run (``runs.csv``): the peak true force from the fault's start to the
@@ -26,14 +26,14 @@ recovery time, the runs that ended safe.
 """
 
 import dataclasses as dc
-import time
 from pathlib import Path
 
 import numpy as np
 import yaml
 
-from drake_contact.app.benchmark import _write_csv, contender_names, contender_scenario
-from drake_contact.app.sweep import finished_metrics, run_points
+from drake_contact.app.benchmark import contender_names, contender_scenario
+from drake_contact.app.campaign import (
+    Campaign, CampaignResult, Point, finished_metrics, run_campaign)
 from drake_contact.errors import ScenarioError
 from drake_contact.faults import FAULT_KINDS, NULL_CASE
 
@@ -209,50 +209,56 @@ def markdown(table, contenders, suite: Suite, wall_s=None) -> str:
     return "\n".join(lines) + "\n"
 
 
-@dc.dataclass
-class FaultStudyResult:
-    rows: list
-    table: list
-    wall_s: float
-    ran: int
-    skipped: int
-    workers: int
-    interrupted: bool
-
-
 def check_contenders(requested):
     """The contenders (comma-separated, checked), DEFAULT_CONTENDERS if None."""
     return contender_names(requested) if requested else list(DEFAULT_CONTENDERS)
 
 
+class FaultStudy(Campaign):
+    """The study as a campaign: a point per contender, supervisor off / on,
+    fault case and wall, scored into runs.csv, aggregated into faults.csv;
+    the report is faults.md."""
+
+    name = "faults"
+    columns = {"runs": ["contender", "safety", "fault", "wall", "status"],
+               "faults": ["fault", "contender", "safety", "runs"]}
+
+    def __init__(self, suite="standard", contenders=None):
+        if suite not in SUITES:
+            raise ScenarioError(f"--suite = {suite} is unknown: choose one of "
+                                f"{', '.join(SUITES)}")
+        self.suite_name, self.suite = suite, SUITES[suite]
+        self.contenders = check_contenders(contenders)
+        self.scenarios = {name: contender_scenario(name) for name in self.contenders}
+        self.runs = {r.path: r for r in plan(self.contenders, self.suite)}
+
+    def points(self):
+        return [Point(r.path, self.scenarios[r.contender], tuple(r.overrides(self.suite)),
+                      r.wall) for r in self.runs.values()]
+
+    def score(self, point, run_dir):
+        return {"runs": [score_run(self.runs[point.name], run_dir)]}
+
+    def aggregate(self, tables):
+        return {"faults": aggregate(tables["runs"], self.contenders, self.suite.case_names)}
+
+    def resolved(self):
+        return {"suite": self.suite_name, "force_limit_n": FORCE_LIMIT_N,
+                "fault_start_s": FAULT_START_S,
+                "cases": {c: fault_cases()[c][1] for c in self.suite.case_names},
+                "contenders": self.scenarios, "walls": [list(w) for w in self.suite.walls]}
+
+    def report(self, out, result):
+        wall_s = result.startup_s + result.wall_s
+        (out / "faults.md").write_text(markdown(
+            result.tables["faults"], self.contenders, self.suite,
+            wall_s=wall_s if result.ran and not result.interrupted else None))
+
+
 def run_fault_study(out_dir, *, contenders=None, suite="standard", workers=None,
-                    scheduler=None, progress=None) -> FaultStudyResult:
+                    scheduler=None, progress=None) -> CampaignResult:
     """Runs the study (the points not finished in ``out_dir`` before) and
-    writes runs.csv, faults.csv, faults.md and faults.yaml (what ran)."""
-    if suite not in SUITES:
-        raise ScenarioError(f"--suite = {suite} is unknown: choose one of {', '.join(SUITES)}")
-    spec = SUITES[suite]
-    names = check_contenders(contenders)
-    out = Path(out_dir)
-    runs = plan(names, spec)
-    scenarios = {name: contender_scenario(name) for name in names}
-    points = [(r.path, scenarios[r.contender], r.overrides(spec), r.wall,
-               str(out / "runs" / r.path), False) for r in runs]
-    todo = [p for p in points if finished_metrics(Path(p[4])) is None]
-    start = time.perf_counter()
-    batch = run_points(todo, workers=workers, scheduler=scheduler, progress=progress)
-    wall = time.perf_counter() - start
-    rows = [score_run(r, out / "runs" / r.path) for r in runs]
-    table = aggregate(rows, names, spec.case_names)
-    _write_csv(rows, out / "runs.csv", ["contender", "safety", "fault", "wall", "status"])
-    _write_csv(table, out / "faults.csv", ["fault", "contender", "safety", "runs"])
-    (out / "faults.md").write_text(markdown(
-        table, names, spec, wall_s=wall if todo and not batch.interrupted else None))
-    (out / "faults.yaml").write_text(yaml.safe_dump(
-        {"suite": suite, "force_limit_n": FORCE_LIMIT_N, "fault_start_s": FAULT_START_S,
-         "cases": {c: fault_cases()[c][1] for c in spec.case_names},
-         "contenders": {n: scenarios[n] for n in names},
-         "walls": [list(w) for w in spec.walls]}, sort_keys=False))
-    return FaultStudyResult(rows, table, wall, ran=len(batch.timings),
-                            skipped=len(points) - len(todo), workers=batch.workers,
-                            interrupted=batch.interrupted)
+    writes runs.csv, faults.csv, faults.md and faults.yaml (what ran). The
+    result's tables: ``runs`` and ``faults``."""
+    return run_campaign(FaultStudy(suite, contenders), out_dir, workers=workers,
+                        scheduler=scheduler, progress=progress)

@@ -47,18 +47,16 @@ another by Dask (``distributed.scheduler.allowed-failures`` times); the table
 is built from the run folders, so nothing is counted twice.
 """
 
-import csv
 import dataclasses as dc
 import itertools
 import json
-import os
-import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import yaml
 
+from drake_contact.app.campaign import (
+    Campaign, CampaignResult, Point, failure_message, finished_metrics, run_campaign, run_status)
 from drake_contact.app.sweep_figures import STATUSES
 from drake_contact.errors import ScenarioError
 from drake_contact.resources import models_dir
@@ -243,59 +241,21 @@ def _map(spec, i, fields) -> MapSpec:
     return m
 
 
-def _warm_up():
-    import drake_contact.app.runner  # noqa: F401 - pydrake and the systems, once per worker
-
-
-def run_point(scenario, overrides, seed, out_dir, baseline=False) -> dict:
-    """Runs one point (on a worker) into ``out_dir``; returns its timing.
-
-    Exceptions other than bad input are the run's failure: written to
-    ``failure.json`` in the folder (and the point rerun next time)."""
-    from drake_contact.app.runner import run
-    started = time.time()
-    out = Path(out_dir)
-    try:
-        run(load_scenario(scenario, overrides, seed=seed), out, figures=False,
-            baseline="window" if baseline else False)
-        failure = None
-    except Exception as e:  # noqa: BLE001 - any failure of a point is its row
-        failure = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "failure.json").write_text(json.dumps({"message": failure}) + "\n")
-    timing = {"started": started, "finished": time.time(), "failure": failure,
-              "host": os.uname().nodename, "pid": os.getpid()}
-    (out / "task.json").write_text(json.dumps(timing) + "\n")
-    return timing
-
-
-def finished_metrics(run_dir: Path):
-    """The metrics of a finished run folder (completed or diverged), else None."""
-    try:
-        metrics = json.loads((run_dir / "metrics.json").read_text())
-    except (OSError, ValueError):
-        return None
-    return metrics if metrics.get("status") in ("completed", "diverged") else None
-
-
-def row_of(sweep: Sweep, task: Task, run_dir: Path, timing=None) -> dict:
+def row_of(sweep: Sweep, task: Task, run_dir: Path) -> dict:
     """The results.csv row of a task from its run folder."""
     row = {"point": task.name} | dict(task.values) | {"seed": task.seed}
     metrics = finished_metrics(run_dir)
-    if timing is None and (run_dir / "task.json").exists():
+    timing = None
+    if (run_dir / "task.json").exists():
         timing = json.loads((run_dir / "task.json").read_text())
     if metrics is None:
-        failure = (timing or {}).get("failure")
-        if failure is None and (run_dir / "failure.json").exists():
-            failure = json.loads((run_dir / "failure.json").read_text())["message"]
+        failure = failure_message(run_dir)
         status = "failed" if failure else "interrupted"
         return row | {"status": status, "message": failure or "not run to the end",
                       "wall_time_s": None}
-    status = metrics["status"]
-    if status == "completed" and metrics.get("contact_losses"):
-        status = "lost_contact"
     wall = (timing["finished"] - timing["started"]) if timing else None
-    row |= {"status": status, "message": metrics.get("message", ""), "wall_time_s": wall}
+    row |= {"status": run_status(metrics), "message": metrics.get("message", ""),
+            "wall_time_s": wall}
     for key, value in _flatten(metrics):
         if key not in row and key not in ("status", "message"):
             row[key] = value
@@ -311,136 +271,45 @@ def _flatten(metrics, prefix=""):
             yield name, value
 
 
-def write_results(rows, fields, path: Path) -> Path:
-    """results.csv: point, the varied fields, seed, status, message,
-    wall_time_s, then every metric seen (sorted). Written atomically."""
-    columns = ["point", *fields, "seed", "status", "message", "wall_time_s"]
-    columns += sorted({k for row in rows for k in row} - set(columns))
-    partial = path.with_name(path.name + ".partial")
-    with partial.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=columns)
-        writer.writeheader()
-        for row in rows:
-            writer.writerow({k: "" if row.get(k) is None else row.get(k) for k in columns})
-    partial.replace(path)
-    return path
+class SweepCampaign(Campaign):
+    """A sweep as a campaign: a point per task, scored into results.csv; the
+    report is the maps, maps.md and sweep.html."""
 
+    name = "sweep"
 
-@dc.dataclass
-class SweepResult:
-    """What :func:`run_sweep` returns."""
+    def __init__(self, sweep: Sweep, figures=True):
+        self.sweep, self.figures = sweep, figures
+        self.columns = {"results": ["point", *sweep.fields, "seed", "status", "message",
+                                    "wall_time_s"]}
+        self._tasks = {t.name: t for t in sweep.tasks()}
 
-    rows: list
-    # Tasks run now, and skipped (finished in an earlier call).
-    ran: int
-    skipped: int
-    wall_s: float
-    # Mean time per point run now on its worker (s), and the sweep's
-    # overhead per point: (wall x workers - sum of task times) / tasks run,
-    # i.e. scheduling, result gathering and idle workers at the end.
-    mean_task_s: float
-    overhead_per_point_s: float
-    workers: int
-    # Cluster start and the workers' first import of the simulation (s).
-    startup_s: float = 0.0
-    interrupted: bool = False
+    def points(self):
+        return [Point(t.name, self.sweep.scenario, tuple(self.sweep.overrides + t.overrides()),
+                      t.seed, baseline="window" if self.sweep.baseline else False)
+                for t in self._tasks.values()]
 
-    def counts(self) -> dict:
-        return {s: sum(r["status"] == s for r in self.rows) for s in STATUSES}
+    def score(self, point, run_dir):
+        return {"results": [row_of(self.sweep, self._tasks[point.name], run_dir)]}
+
+    def resolved(self):
+        return _resolved(self.sweep)
+
+    def report(self, out, result):
+        if self.figures:
+            _write_figures(self.sweep, result, out)
 
 
 def run_sweep(sweep: Sweep, out_dir, *, workers=None, scheduler=None, progress=None,
-              figures=True) -> SweepResult:
+              figures=True) -> CampaignResult:
     """Runs every task of ``sweep`` not already finished in ``out_dir`` on a
-    Dask cluster, then writes results.csv, the maps and sweep.html.
+    Dask cluster (:func:`drake_contact.app.campaign.run_campaign`), then
+    writes results.csv, the maps and sweep.html.
 
     ``workers``: the LocalCluster's worker processes (default: one per
     core); ``scheduler``: an address of a running cluster instead.
-    ``progress(done, failed, total, eta_s)`` is called as tasks finish."""
-    out = Path(out_dir)
-    runs = out / "runs"
-    runs.mkdir(parents=True, exist_ok=True)
-    (out / "sweep.yaml").write_text(yaml.safe_dump(_resolved(sweep), sort_keys=False))
-    tasks = sweep.tasks()
-    todo = [t for t in tasks if finished_metrics(runs / t.name) is None]
-    batch = run_points([(t.name, sweep.scenario, sweep.overrides + t.overrides(), t.seed,
-                         str(runs / t.name), sweep.baseline) for t in todo],
-                       workers=workers, scheduler=scheduler, progress=progress)
-    timings, interrupted, n_workers = batch.timings, batch.interrupted, batch.workers
-    startup, wall = batch.startup_s, batch.wall_s
-    rows = [row_of(sweep, t, runs / t.name, timings.get(t.name)) for t in tasks]
-    write_results(rows, sweep.fields, out / "results.csv")
-    durations = [tm["finished"] - tm["started"] for tm in timings.values() if tm["started"]]
-    mean_task = float(np.mean(durations)) if durations else 0.0
-    overhead = (wall * n_workers - sum(durations)) / len(durations) if durations else 0.0
-    result = SweepResult(rows, ran=len(timings), skipped=len(tasks) - len(todo), wall_s=wall,
-                         mean_task_s=mean_task, overhead_per_point_s=overhead,
-                         workers=n_workers, startup_s=startup, interrupted=interrupted)
-    if figures:
-        _write_figures(sweep, result, out)
-    return result
-
-
-@dc.dataclass
-class PointsRun:
-    """What :func:`run_points` returns."""
-
-    # Point name -> its timing (run_point's dict, or a failure).
-    timings: dict
-    interrupted: bool
-    workers: int
-    # Cluster start and the workers' first import (s); the points' wall time (s).
-    startup_s: float
-    wall_s: float
-
-
-def run_points(points, *, workers=None, scheduler=None, progress=None) -> PointsRun:
-    """Runs ``points`` (tuples ``(name, scenario, overrides, seed, out_dir,
-    baseline)``, the arguments of :func:`run_point` after a unique name) as
-    tasks on a Dask cluster: a LocalCluster of ``workers`` processes
-    (default one per core) or the running cluster at ``scheduler``.
-    ``progress(done, failed, total, eta_s)`` is called as points finish;
-    Ctrl-C stops the batch (``interrupted``), keeping what finished."""
-    from distributed import Client, LocalCluster, as_completed
-
-    timings, interrupted, startup, n_workers = {}, False, 0.0, 0
-    start = time.perf_counter()
-    if points:
-        cluster = None
-        if scheduler:
-            client = Client(scheduler)
-        else:
-            cluster = LocalCluster(n_workers=workers or os.cpu_count(), threads_per_worker=1,
-                                   processes=True, dashboard_address=":0")
-            client = Client(cluster)
-        n_workers = len(client.scheduler_info()["workers"])
-        # Import the simulation on every worker first, so that the per-point
-        # overhead is the batch's own (start-up is reported apart).
-        client.run(_warm_up)
-        startup = time.perf_counter() - start
-        start = time.perf_counter()
-        try:
-            futures = {client.submit(run_point, *args, key=f"point-{name}", pure=False): name
-                       for name, *args in points}
-            failed = 0
-            for done, future in enumerate(as_completed(futures), start=1):
-                name = futures[future]
-                try:
-                    timings[name] = future.result()
-                except Exception as e:  # noqa: BLE001 - e.g. KilledWorker: the row says so
-                    timings[name] = {"failure": f"{type(e).__name__}: {e}",
-                                     "started": 0.0, "finished": 0.0}
-                failed += timings[name]["failure"] is not None
-                if progress is not None:
-                    elapsed = time.perf_counter() - start
-                    progress(done, failed, len(points), elapsed / done * (len(points) - done))
-        except KeyboardInterrupt:
-            interrupted = True
-        finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
-    return PointsRun(timings, interrupted, n_workers, startup, time.perf_counter() - start)
+    ``progress(done, failed, total, eta_s, name)`` is called as tasks finish."""
+    return run_campaign(SweepCampaign(sweep, figures), out_dir, workers=workers,
+                        scheduler=scheduler, progress=progress)
 
 
 def _resolved(sweep: Sweep) -> dict:
@@ -449,8 +318,8 @@ def _resolved(sweep: Sweep) -> dict:
             "seeds": sweep.seeds, "maps": [dc.asdict(m) for m in sweep.maps]}
 
 
-def summary_lines(sweep: Sweep, result: SweepResult) -> list[str]:
-    counts = result.counts()
+def summary_lines(sweep: Sweep, result: CampaignResult) -> list[str]:
+    counts = {s: sum(r["status"] == s for r in result.rows) for s in STATUSES}
     lines = [f"{len(result.rows)} runs ({len(result.rows) // len(sweep.seeds)} points x "
              f"{len(sweep.seeds)} seeds): "
              + ", ".join(f"{n} {s}" for s, n in counts.items() if n),
@@ -467,7 +336,7 @@ def summary_lines(sweep: Sweep, result: SweepResult) -> list[str]:
     return lines
 
 
-def _write_figures(sweep: Sweep, result: SweepResult, out: Path):
+def _write_figures(sweep: Sweep, result: CampaignResult, out: Path):
     from drake_contact.app.sweep_figures import (
         markdown_map, write_sweep_figures, write_sweep_html)
     figures = write_sweep_figures(result.rows, sweep.maps, out) if sweep.maps else []
@@ -476,15 +345,3 @@ def _write_figures(sweep: Sweep, result: SweepResult, out: Path):
     (out / "maps.md").write_text("\n".join(summary_lines(sweep, result) + [""] + tables))
     write_sweep_html(out, result.rows, figures, title=sweep.description or "sweep",
                      summary_lines=summary_lines(sweep, result))
-
-
-def terminal_progress(stream=sys.stderr):
-    """A progress line (points done, failed, ETA) on a terminal; None off one."""
-    if not stream.isatty():
-        return None
-
-    def report(done, failed, total, eta_s):
-        end = "\n" if done == total else ""
-        stream.write(f"\r  {done}/{total} points done, {failed} failed, ETA {eta_s:6.0f} s  {end}")
-        stream.flush()
-    return report

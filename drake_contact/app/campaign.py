@@ -1,0 +1,380 @@
+"""Campaigns: many runs, planned, run on Dask, scored into tables.
+
+A sweep, the benchmark, the fault study and the reproduction are each a
+:class:`Campaign`: a short declaration of
+
+* its :class:`Point` s (one ``run`` each: a scenario, overrides, a seed);
+* how a finished run folder is scored (:meth:`Campaign.score`: rows per
+  table);
+* the tables aggregated from those rows (:meth:`Campaign.aggregate`);
+* its report (:meth:`Campaign.report`: Markdown, HTML, figures) and what
+  it ran (:meth:`Campaign.resolved`, written as ``<name>.yaml``).
+
+:func:`run_campaign` does the rest, the same way for all: it skips the
+points whose folder holds a finished ``metrics.json`` (so a campaign resumes
+where it stopped), runs the others as tasks on a Dask cluster (a
+``LocalCluster`` of ``workers`` processes, one thread each, or the cluster
+at ``scheduler``; a task may hold several points, run one after the other
+on its worker), scores every point from its folder, writes each table as
+``<table>.csv`` and calls the report.
+
+A point that diverges or raises is a row with its status, never a crashed
+campaign: a raising run writes ``failure.json`` in its folder. Every run
+writes ``task.json`` (when and where it ran) and ``run.log`` (its outcome in
+one line). Ctrl-C stops the campaign: points not started are not started,
+running ones stop at their next check (every 0.1 s simulated) and write
+their logs and ``metrics.json`` with status ``interrupted`` (run again next
+time), then the tables and report are written from what finished, and
+:attr:`CampaignResult.interrupted` says so.
+"""
+
+import csv
+import dataclasses as dc
+import json
+import os
+import signal
+import sys
+import threading
+import time
+import uuid
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+#: How long the workers get to write the logs of their interrupted runs (s).
+STOP_GRACE_S = 120.0
+#: On a worker: the batches stopped by their client (see :func:`run_points`).
+_STOPPED = set()
+
+
+@dc.dataclass(frozen=True)
+class Point:
+    """One run of a campaign."""
+
+    # Unique in the campaign: the run folder's path under the runs folder.
+    name: str
+    # A bundled scenario's name, a path, YAML text or a mapping.
+    scenario: object
+    # ``dotted.key=value`` overrides, and the run's seed.
+    overrides: tuple = ()
+    seed: int = 0
+    # The hybrid-only baseline: False, True (the whole run) or "window".
+    baseline: object = False
+    # Figures in the run folder, and a Meshcat playback (playback.html).
+    figures: bool = False
+    record: bool = False
+
+
+def finished_metrics(run_dir: Path):
+    """The metrics of a finished run folder (completed or diverged), else None."""
+    try:
+        metrics = json.loads((Path(run_dir) / "metrics.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return metrics if metrics.get("status") in ("completed", "diverged") else None
+
+
+def failure_message(run_dir: Path):
+    """The message a raising run left in ``failure.json``, else None."""
+    path = Path(run_dir) / "failure.json"
+    return json.loads(path.read_text())["message"] if path.exists() else None
+
+
+def run_status(metrics) -> str:
+    """A finished run's status for a table: ``lost_contact`` for a completed
+    run that lost contact, else metrics.json's own."""
+    status = metrics["status"]
+    if status == "completed" and metrics.get("contact_losses"):
+        return "lost_contact"
+    return status
+
+
+def _warm_up():
+    """On each worker before its first point: import the simulation once."""
+    import drake_contact.app.runner  # noqa: F401 - pydrake and the systems
+
+
+def _leave_ctrl_c_to_the_client():
+    """On the workers of our own LocalCluster: a terminal's Ctrl-C reaches the
+    whole process group, and the client stops the points so that they keep
+    their logs."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _stop_batch(batch):
+    _STOPPED.add(batch)
+
+
+def _stop_check(batch):
+    """The runs' progress callback: raising KeyboardInterrupt inside the
+    simulation loop ends the run as ``interrupted``, logs kept."""
+    def check(t, duration, wall_s):
+        if batch in _STOPPED:
+            raise KeyboardInterrupt
+    return check
+
+
+def run_point(point: Point, out_dir, batch="") -> dict:
+    """Runs ``point`` (on a worker) into ``out_dir``; returns its timing
+    (``started``, ``finished``, ``failure`` or None, ``host``, ``pid``;
+    ``started`` 0: its batch was stopped before it began)."""
+    from drake_contact.app.runner import run
+    from drake_contact.scenario import load_scenario
+    if batch in _STOPPED:
+        return {"started": 0.0, "finished": 0.0, "failure": None}
+    started = time.time()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "failure.json").unlink(missing_ok=True)
+    try:
+        result = run(load_scenario(point.scenario, point.overrides, seed=point.seed), out,
+                     figures=point.figures, baseline=point.baseline, progress=_stop_check(batch),
+                     record=out / "playback.html" if point.record else None)
+        failure, line = None, f"{result.status}: {result.message}".rstrip(": ")
+    except Exception as e:  # noqa: BLE001 - any failure of a point is its row
+        failure = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"
+        (out / "failure.json").write_text(json.dumps({"message": failure}) + "\n")
+        line = f"failed: {failure}"
+    timing = {"started": started, "finished": time.time(), "failure": failure,
+              "host": os.uname().nodename, "pid": os.getpid()}
+    (out / "task.json").write_text(json.dumps(timing) + "\n")
+    (out / "run.log").write_text(f"{line} ({timing['finished'] - started:.1f} s on "
+                                 f"{timing['host']}, pid {timing['pid']})\n")
+    return timing
+
+
+def run_task(task, batch="") -> dict:
+    """Runs a task's ``(name, point, out_dir)`` triples one after the other;
+    returns {name: timing}."""
+    return {name: run_point(point, out_dir, batch) for name, point, out_dir in task}
+
+
+@dc.dataclass
+class PointsRun:
+    """What :func:`run_points` returns."""
+
+    # Point name -> its timing (run_point's dict, or a failure).
+    timings: dict
+    interrupted: bool
+    workers: int
+    # Cluster start and the workers' first import (s); the points' wall time (s).
+    startup_s: float
+    wall_s: float
+
+
+def run_points(points, *, workers=None, scheduler=None, progress=None,
+               points_per_task=1) -> PointsRun:
+    """Runs ``points`` (pairs ``(Point, out_dir)``) as tasks of up to
+    ``points_per_task`` points on a Dask cluster: a LocalCluster of
+    ``workers`` processes (default one per core) or the running cluster at
+    ``scheduler``. ``progress(done, failed, total, eta_s, name)`` is called
+    as each point finishes. Ctrl-C stops the batch (``interrupted``): the
+    running points write their logs, and what finished is kept."""
+    from distributed import Client, LocalCluster
+
+    timings, interrupted, startup, n_workers = {}, False, 0.0, 0
+    start = time.perf_counter()
+    if not points:
+        return PointsRun(timings, interrupted, n_workers, startup, 0.0)
+    tasks = [[(point.name, point, str(out)) for point, out in points[i:i + points_per_task]]
+             for i in range(0, len(points), points_per_task)]
+    cluster = client = None
+    try:
+        if scheduler:
+            client = Client(scheduler)
+        else:
+            cluster = LocalCluster(n_workers=workers or os.cpu_count(), threads_per_worker=1,
+                                   processes=True, dashboard_address=":0")
+            client = Client(cluster)
+        n_workers = len(client.scheduler_info()["workers"])
+        # Import the simulation on every worker first, so that the per-point
+        # overhead is the batch's own (start-up is reported apart).
+        client.run(_warm_up)
+        if cluster is not None:
+            client.run(_leave_ctrl_c_to_the_client)
+        startup = time.perf_counter() - start
+        start = time.perf_counter()
+        batch = uuid.uuid4().hex
+        futures = {client.submit(run_task, task, batch, key=f"task-{task[0][0]}-{batch}",
+                                 pure=False): task for task in tasks}
+        try:
+            _gather(futures, timings, len(points), start, progress)
+        except KeyboardInterrupt:
+            interrupted = True
+            client.run(_stop_batch, batch)
+            _gather(futures, timings, len(points), start, None, timeout=STOP_GRACE_S)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        if client is not None:
+            client.close()
+        if cluster is not None:
+            cluster.close()
+    timings = {name: t for name, t in timings.items() if t["started"] or t["failure"]}
+    return PointsRun(timings, interrupted, n_workers, startup, time.perf_counter() - start)
+
+
+def _gather(futures, timings, total, start, progress, timeout=None):
+    """Collects the timings of the tasks not collected yet as they finish (a
+    task that raised, e.g. its worker died, gives each of its points that
+    failure)."""
+    from distributed import as_completed
+    pending = [f for f, task in futures.items()
+               if not all(name in timings for name, _, _ in task)]
+    failed = sum(t["failure"] is not None for t in timings.values())
+    try:
+        for future in as_completed(pending, timeout=timeout):
+            task = futures[future]
+            try:
+                found = future.result()
+            except Exception as e:  # noqa: BLE001 - e.g. KilledWorker: the rows say so
+                found = {name: {"failure": f"{type(e).__name__}: {e}", "started": 0.0,
+                                "finished": 0.0} for name, _, _ in task}
+            for name, timing in found.items():
+                timings[name] = timing
+                failed += timing["failure"] is not None
+                if progress is not None:
+                    done = len(timings)
+                    elapsed = time.perf_counter() - start
+                    progress(done, failed, total, elapsed / done * (total - done), name)
+    except TimeoutError:
+        pass
+
+
+def write_csv(rows, path: Path, first=()) -> Path:
+    """A table as CSV: the columns ``first``, then every other column seen
+    (sorted); None as an empty cell. Written atomically."""
+    columns = list(first) + sorted({k for r in rows for k in r} - set(first))
+    partial = path.with_name(path.name + ".partial")
+    with partial.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=columns)
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: "" if row.get(k) is None else row.get(k) for k in columns})
+    partial.replace(path)
+    return path
+
+
+@dc.dataclass
+class CampaignResult:
+    """What :func:`run_campaign` returns."""
+
+    # Table name -> its rows (each written as <name>.csv).
+    tables: dict
+    # Points run now, and skipped (finished in an earlier call).
+    ran: int
+    skipped: int
+    # The points' wall time, and the cluster's start (s).
+    wall_s: float
+    startup_s: float
+    workers: int
+    interrupted: bool
+    # Point name -> timing, for the points run now.
+    timings: dict = dc.field(default_factory=dict)
+    # The table of one row per point (the campaign's first in ``columns``).
+    main: str = ""
+
+    @property
+    def rows(self) -> list:
+        return self.tables.get(self.main, [])
+
+    @property
+    def mean_task_s(self) -> float:
+        """Mean time per point run now on its worker (s)."""
+        durations = self._durations()
+        return float(np.mean(durations)) if durations else 0.0
+
+    @property
+    def overhead_per_point_s(self) -> float:
+        """(wall x workers - sum of point times) / points run now: scheduling,
+        gathering and idle workers at the end (s)."""
+        durations = self._durations()
+        return ((self.wall_s * self.workers - sum(durations)) / len(durations)
+                if durations else 0.0)
+
+    def _durations(self):
+        return [t["finished"] - t["started"] for t in self.timings.values() if t["started"]]
+
+
+class Campaign:
+    """A campaign's declaration; subclasses fill in what differs.
+
+    ``name``: the resolved file ``<name>.yaml``; ``runs_folder``: where the
+    run folders go under the output folder (``""``: the output folder
+    itself); ``columns``: table name -> its first CSV columns (tables not
+    named there are not written as CSV)."""
+
+    name = "campaign"
+    runs_folder = "runs"
+    columns: dict = {}
+
+    def points(self) -> list[Point]:
+        raise NotImplementedError
+
+    def score(self, point: Point, run_dir: Path) -> dict:
+        """{table: rows} scored from one point's folder (finished or not)."""
+        raise NotImplementedError
+
+    def aggregate(self, tables: dict) -> dict:
+        """More tables from the scored ones (e.g. medians over walls, ranks)."""
+        return {}
+
+    def resolved(self) -> dict:
+        """What the campaign runs, written as ``<name>.yaml`` before it runs."""
+        return {}
+
+    def report(self, out: Path, result: CampaignResult):
+        """Writes the campaign's Markdown, HTML and figures."""
+
+
+def run_campaign(campaign: Campaign, out_dir, *, workers=None, scheduler=None, progress=None,
+                 points_per_task=1) -> CampaignResult:
+    """Runs the points of ``campaign`` not finished in ``out_dir`` before,
+    then scores, aggregates, writes the tables and the report (also after
+    Ctrl-C, from what finished)."""
+    out = Path(out_dir)
+    runs = out / campaign.runs_folder
+    runs.mkdir(parents=True, exist_ok=True)
+    resolved = campaign.resolved()
+    if resolved:
+        (out / f"{campaign.name}.yaml").write_text(yaml.safe_dump(resolved, sort_keys=False))
+    points = campaign.points()
+    names = [p.name for p in points]
+    if len(set(names)) != len(names):
+        raise ValueError(f"{campaign.name}: two points share a name")
+    todo = [(p, runs / p.name) for p in points if finished_metrics(runs / p.name) is None]
+    batch = run_points(todo, workers=workers, scheduler=scheduler, progress=progress,
+                       points_per_task=points_per_task)
+    for point, run_dir in todo:
+        failure = (batch.timings.get(point.name) or {}).get("failure")
+        if failure and failure_message(run_dir) is None:  # e.g. its worker died each time
+            run_dir.mkdir(parents=True, exist_ok=True)
+            (run_dir / "failure.json").write_text(json.dumps({"message": failure}) + "\n")
+    tables = {}
+    for point in points:
+        for table, rows in campaign.score(point, runs / point.name).items():
+            tables.setdefault(table, []).extend(rows)
+    tables |= campaign.aggregate(tables)
+    for table, first in campaign.columns.items():
+        if table in tables:
+            write_csv(tables[table], out / f"{table}.csv", first)
+    result = CampaignResult(tables, ran=len(batch.timings), skipped=len(points) - len(todo),
+                            wall_s=batch.wall_s, startup_s=batch.startup_s,
+                            workers=batch.workers, interrupted=batch.interrupted,
+                            timings=batch.timings, main=next(iter(campaign.columns), ""))
+    campaign.report(out, result)
+    return result
+
+
+def points_progress(stream=sys.stderr):
+    """A progress line (points done, failed, ETA) on a terminal; None off one."""
+    if not stream.isatty():
+        return None
+
+    def report(done, failed, total, eta_s, name=""):
+        end = "\n" if done == total else ""
+        stream.write(f"\r  {done}/{total} points done, {failed} failed, ETA {eta_s:6.0f} s  {end}")
+        stream.flush()
+    return report

@@ -1,0 +1,89 @@
+"""The campaign engine, extended the documented way: a campaign declared in
+the test (its points, scores, an aggregate table and a report) runs on a
+Dask LocalCluster, several points per task; a raising point is a row;
+rerunning resumes; the tables are the CSV files."""
+
+import csv
+
+import pytest
+
+from drake_contact.app.campaign import (
+    Campaign, Point, finished_metrics, run_campaign, run_status, write_csv)
+
+pytestmark = pytest.mark.xdist_group("test_campaign")
+
+
+class Stiffness(Campaign):
+    """push_constant (2.4 s: it touches at 2.1 s) on walls of three
+    stiffnesses, and one point whose override names no field."""
+
+    name = "stiffness"
+    columns = {"runs": ["wall", "status"], "summary": ["completed"]}
+
+    def points(self):
+        points = [Point(f"k{k:g}", "push_constant", ("simulation.duration=2.4",
+                                                     f"environment.stiffness={k}"), seed=1)
+                  for k in (5000.0, 7000.0, 9000.0)]
+        return points + [Point("bad", "push_constant", ("environment.stifness=1",))]
+
+    def score(self, point, run_dir):
+        metrics = finished_metrics(run_dir)
+        row = {"wall": point.name, "status": "failed" if metrics is None else run_status(metrics)}
+        if metrics is not None:
+            row["peak_force_n"] = metrics["peak_force_n"]
+        return {"runs": [row]}
+
+    def aggregate(self, tables):
+        return {"summary": [{"completed": sum(r["status"] == "completed"
+                                              for r in tables["runs"])}]}
+
+    def resolved(self):
+        return {"walls": [5000.0, 7000.0, 9000.0]}
+
+    def report(self, out, result):
+        (out / "report.md").write_text(f"{result.tables['summary'][0]['completed']} completed\n")
+
+
+def _read(path):
+    with path.open() as f:
+        return list(csv.DictReader(f))
+
+
+def test_a_campaign_declared_in_a_few_lines_runs_scores_and_resumes(tmp_path):
+    seen = []
+    result = run_campaign(Stiffness(), tmp_path, workers=2, points_per_task=2,
+                          progress=lambda done, failed, total, eta, name: seen.append(name))
+    assert (result.ran, result.skipped, result.workers) == (4, 0, 2)
+    assert sorted(seen) == ["bad", "k5000", "k7000", "k9000"]
+    runs = _read(tmp_path / "runs.csv")
+    assert [r["wall"] for r in runs] == ["k5000", "k7000", "k9000", "bad"]  # the plan's order
+    assert [r["status"] for r in runs] == ["completed"] * 3 + ["failed"]
+    peaks = [float(r["peak_force_n"]) for r in runs[:3]]
+    assert all(p > 0 for p in peaks)
+    assert _read(tmp_path / "summary.csv") == [{"completed": "3"}]
+    assert (tmp_path / "report.md").read_text() == "3 completed\n"
+    assert "walls:" in (tmp_path / "stiffness.yaml").read_text()
+    # The raising point says why in its folder, in one line.
+    failure = (tmp_path / "runs" / "bad" / "failure.json").read_text()
+    assert "environment.stifness" in failure
+    assert (tmp_path / "runs" / "bad" / "run.log").read_text().startswith("failed: ")
+    assert (tmp_path / "runs" / "k5000" / "run.log").read_text().startswith("completed")
+    # Rerun: the finished points are skipped, the failed one is tried again.
+    again = run_campaign(Stiffness(), tmp_path, workers=1)
+    assert (again.ran, again.skipped) == (1, 3)
+    assert _read(tmp_path / "runs.csv") == runs
+
+
+def test_csv_tables_put_their_first_columns_first(tmp_path):
+    path = write_csv([{"b": 1, "a": None, "z": 2.5}, {"c": "x"}], tmp_path / "t.csv", ["z"])
+    assert path.read_text().splitlines() == ["z,a,b,c", "2.5,,1,", ",,,x"]
+    assert not (tmp_path / "t.csv.partial").exists()
+
+
+def test_two_points_with_one_name_are_refused(tmp_path):
+    class Twice(Stiffness):
+        def points(self):
+            return [Point("same", "push_constant"), Point("same", "push_constant")]
+
+    with pytest.raises(ValueError, match="two points share a name"):
+        run_campaign(Twice(), tmp_path)
