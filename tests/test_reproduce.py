@@ -244,21 +244,20 @@ def test_fig_6_14_needs_the_late_windows_and_no_contact_loss(tmp_path):
     assert _small_lr_row(tmp_path, lag + [2.0] * 30).passed is False
 
 
-def test_the_long_run_scores_its_baseline_in_the_window_only(tmp_path):
+def test_the_long_run_scores_its_baseline_in_the_window_only():
     """nn_small_lr's hybrid-only baseline runs to 1 s past the scoring
-    window (no row reads the rest), through an option the CLI accepts."""
-    from drake_contact.app.cli import _build_parser
+    window (no row reads the rest); --quick shortens the long runs and runs
+    no baselines; the first seed's identification runs record a playback."""
     jobs = {job.scenario: job for job in JOBS}
-    full = reproduce._run_command(jobs["nn_small_lr"], tmp_path, quick=False)
-    assert "--baseline-window" in full
-    assert "--baseline-window" not in reproduce._run_command(jobs["nn_styrofoam"], tmp_path,
-                                                             quick=False)
-    assert "--duration" not in full
-    quick = reproduce._run_command(jobs["nn_small_lr"], tmp_path, quick=True)
-    assert "--no-baseline" in quick and "--baseline-window" not in quick
-    assert quick[quick.index("--duration") + 1] == "85.0"
-    args = _build_parser().parse_args(full[3:])
-    assert args.baseline_window and not args.no_baseline
+    full = reproduce.job_point(jobs["nn_small_lr"], 0, quick=False, first_seed=0)
+    assert full.baseline == "window" and full.overrides == () and full.figures
+    assert reproduce.job_point(jobs["nn_styrofoam"], 0, quick=False, first_seed=0).baseline \
+        is None  # the runner's default: the whole baseline for the neural controller
+    quick = reproduce.job_point(jobs["nn_small_lr"], 1, quick=True, first_seed=1)
+    assert quick.baseline is False and quick.overrides == ("simulation.duration=85.0",)
+    assert quick.name == "nn_small_lr/seed_1"
+    assert reproduce.job_point(jobs["identify_rubber"], 1, quick=True, first_seed=1).record
+    assert not reproduce.job_point(jobs["identify_rubber"], 2, quick=True, first_seed=1).record
 
 
 def _sensor_spectrum_seeds(out, p99_by_seed):

@@ -3,9 +3,10 @@ figures, a scored report and a browser playback per material.
 
     drake-contact reproduce [--quick] --out DIR [--jobs N] [--seeds 0-2]
 
-Each scenario runs once per seed (default seeds 0, 1 and 2) as its own
-``drake-contact run`` process (``--jobs`` at a time, default one per core),
-writing ``DIR/<scenario>/seed_<s>/`` (logs, metrics, figures, ``run.log``);
+Each scenario runs once per seed (default seeds 0, 1 and 2) as a point of a
+campaign (:mod:`drake_contact.app.campaign`) on ``--jobs`` local Dask workers
+(default one per core), as ``drake-contact run`` would run it, writing
+``DIR/<scenario>/seed_<s>/`` (logs, metrics, figures, ``run.log``);
 the identification runs of the first seed also record a Meshcat playback
 (``playback.html``). Then :data:`RESULTS`, the thesis's results (chapter 6),
 are scored from the runs' ``metrics.json``, seed by seed: each result is a
@@ -39,14 +40,12 @@ import dataclasses as dc
 import html
 import json
 import math
-import os
 import re
-import subprocess
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path, PurePosixPath
 
+from drake_contact.app.campaign import Campaign, Point, failure_message, run_campaign
 from drake_contact.constants import RATIO_TOLERANCE
 
 
@@ -597,61 +596,77 @@ def run_folder(out: Path, scenario: str, seed: int) -> Path:
     return Path(out) / scenario / f"seed_{seed}"
 
 
-def _run_command(job: Job, out: Path, quick: bool, seed: int = 0, *,
-                 record=False) -> list[str]:
-    folder = run_folder(out, job.scenario, seed)
-    command = [sys.executable, "-m", "drake_contact", "run", job.scenario,
-               "--out", str(folder), "--seed", str(seed)]
-    if quick:
-        command.append("--no-baseline")
-        if job.quick_duration_s is not None:
-            command += ["--duration", str(job.quick_duration_s)]
-    elif job.baseline_window:
-        command.append("--baseline-window")
-    if job.record and record:
-        command += ["--record", str(folder / "playback.html")]
-    return command
+def job_point(job: Job, seed: int, *, quick: bool, first_seed: int) -> Point:
+    """One scenario's run for one seed, as ``drake-contact run`` would do it:
+    its figures; in --quick its short duration and no baseline, else the
+    baseline (to the scoring window only where the job says so); the first
+    seed's identification runs record a playback."""
+    overrides = ()
+    if quick and job.quick_duration_s is not None:
+        overrides = (f"simulation.duration={job.quick_duration_s}",)
+    baseline = False if quick else "window" if job.baseline_window else None
+    return Point(run_folder(".", job.scenario, seed).as_posix(), job.scenario, overrides, seed,
+                 baseline=baseline, figures=True, record=job.record and seed == first_seed)
 
 
-def run_all(out_dir, *, quick=False, jobs=None, seeds=SEEDS, progress=print) -> dict:
-    """Runs :data:`JOBS` once per seed as ``drake-contact run`` processes,
-    ``jobs`` at a time (the first seed records the playbacks); returns
-    {(scenario, seed): exit status} (None: not started). On Ctrl-C the
-    running ones are interrupted (they write their logs) and the rest are
-    not started; KeyboardInterrupt is re-raised after they have exited."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    jobs = jobs or os.cpu_count() or 1
-    pending = [(job, seed) for job in JOBS for seed in seeds]
-    running = {}
-    status = {(job.scenario, seed): None for job, seed in pending}
-    try:
-        while pending or running:
-            while pending and len(running) < jobs:
-                job, seed = pending.pop(0)
-                folder = run_folder(out, job.scenario, seed)
-                folder.mkdir(parents=True, exist_ok=True)
-                log = open(folder / "run.log", "w")
-                command = _run_command(job, out, quick, seed, record=seed == seeds[0])
-                running[job.scenario, seed] = (subprocess.Popen(
-                    command, stdout=log, stderr=subprocess.STDOUT), log, time.perf_counter())
-                progress(f"started  {job.scenario} seed {seed}")
-            for key, (process, log, start) in list(running.items()):
-                if process.poll() is not None:
-                    log.close()
-                    status[key] = process.returncode
-                    del running[key]
-                    progress(f"finished {key[0]} seed {key[1]} (exit {process.returncode}) in "
-                             f"{time.perf_counter() - start:.0f} s")
-            time.sleep(0.2)
-    except KeyboardInterrupt:
-        # The children got the same SIGINT (one process group): wait for
-        # them to write their logs.
-        for key, (process, log, _) in running.items():
-            status[key] = process.wait()
-            log.close()
-        raise
-    return status
+def run_exit_status(run_dir: Path):
+    """A run's outcome as ``drake-contact run``'s exit status: 0 completed,
+    3 diverged, 130 interrupted, 1 raised; None: not run."""
+    path = run_dir / "metrics.json"
+    if path.exists():
+        return {"completed": 0, "diverged": 3}.get(json.loads(path.read_text()).get("status"),
+                                                   130)
+    return 1 if failure_message(run_dir) is not None else None
+
+
+class Reproduction(Campaign):
+    """The reproduction as a campaign: a point per job and seed, written to
+    ``DIR/<scenario>/seed_<s>/``; runs.csv has each run's outcome; the
+    report's rows (:func:`score`) are scored across runs and seeds."""
+
+    name = "reproduce"
+    runs_folder = ""
+    columns = {"runs": ["scenario", "seed", "exit_status", "status", "message"]}
+
+    def __init__(self, out_dir, *, quick=False, seeds=SEEDS, progress=print):
+        self.out, self.start = Path(out_dir), time.perf_counter()
+        self.quick, self.seeds, self.progress = quick, tuple(seeds), progress
+        self._points = {}
+        for job in JOBS:
+            for seed in self.seeds:
+                point = job_point(job, seed, quick=quick, first_seed=self.seeds[0])
+                self._points[point.name] = (job.scenario, seed, point)
+
+    def points(self):
+        return [point for _, _, point in self._points.values()]
+
+    def score(self, point, run_dir):
+        scenario, seed, _ = self._points[point.name]
+        metrics = {}
+        if (run_dir / "metrics.json").exists():
+            metrics = json.loads((run_dir / "metrics.json").read_text())
+        return {"runs": [{"scenario": scenario, "seed": seed,
+                          "exit_status": run_exit_status(run_dir),
+                          "status": metrics.get("status"),
+                          "message": metrics.get("message") or failure_message(run_dir)}]}
+
+    def aggregate(self, tables):
+        return {"results": score(self.out, seeds=self.seeds, quick=self.quick)}
+
+    def resolved(self):
+        return {"quick": self.quick, "seeds": list(self.seeds),
+                "runs": {name: {"scenario": p.scenario, "seed": p.seed,
+                                "overrides": list(p.overrides), "baseline": p.baseline,
+                                "record": p.record}
+                         for name, (_, _, p) in self._points.items()}}
+
+    def report(self, out, result):
+        status = {(row["scenario"], row["seed"]): row["exit_status"]
+                  for row in result.tables["runs"]}
+        path = write_report(out, result.tables["results"], quick=self.quick, status=status,
+                            seeds=self.seeds, interrupted=result.interrupted,
+                            wall_s=time.perf_counter() - self.start)
+        self.progress(f"wrote {path} and {path.with_suffix('.html')}")
 
 
 #: The scenario whose diagram the report draws: the neural controller's,
@@ -836,26 +851,12 @@ def write_report(out_dir, rows, *, quick, status, seeds=SEEDS, interrupted=False
 
 def reproduce(out_dir, *, quick=False, jobs=None, seeds=SEEDS,
               progress=print) -> tuple[list[Row], bool]:
-    """Runs everything over ``seeds`` and writes the report; returns (rows,
-    interrupted)."""
-    start = time.perf_counter()
-    interrupted = False
-    try:
-        status = run_all(out_dir, quick=quick, jobs=jobs, seeds=seeds, progress=progress)
-    except KeyboardInterrupt:
-        interrupted = True
-        status = {(job.scenario, seed): _exit_status(run_folder(out_dir, job.scenario, seed))
-                  for job in JOBS for seed in seeds}
-    rows = score(out_dir, seeds=seeds, quick=quick)
-    path = write_report(out_dir, rows, quick=quick, status=status, seeds=seeds,
-                        interrupted=interrupted, wall_s=time.perf_counter() - start)
-    progress(f"wrote {path} and {path.with_suffix('.html')}")
-    return rows, interrupted
+    """Runs everything over ``seeds`` on ``jobs`` local workers (default one
+    per core) and writes the report; returns (rows, interrupted)."""
+    campaign = Reproduction(out_dir, quick=quick, seeds=seeds, progress=progress)
 
-
-def _exit_status(run_dir: Path):
-    """A run's outcome from its metrics after an interruption (None: none)."""
-    path = run_dir / "metrics.json"
-    if not path.exists():
-        return None
-    return {"completed": 0, "diverged": 3}.get(json.loads(path.read_text()).get("status"), 130)
+    def finished(done, failed, total, eta_s, name):
+        status = run_exit_status(Path(out_dir) / name)
+        progress(f"finished {name} (exit {status}) [{done}/{total}, ETA {eta_s:.0f} s]")
+    result = run_campaign(campaign, out_dir, workers=jobs, progress=finished)
+    return result.tables["results"], result.interrupted
