@@ -1,6 +1,5 @@
 """The DSP force input: 16-bit ADC, 200 N/V, sign flip, tare; RC modes."""
 
-import dataclasses as dc
 
 import numpy as np
 import pytest
@@ -62,8 +61,9 @@ def test_modes_build_the_expected_channels():
 
 
 class ReferenceDsp:
-    """The former Python LeafSystem's arithmetic, operation for operation:
-    DspForceInput (a SymbolicVectorSystem) must match it bit for bit."""
+    """The ADC and tare in numpy, operation for operation: DspForceInput (a
+    SymbolicVectorSystem) must match it bit for bit (zeros of either sign
+    alike)."""
 
     def __init__(self, config, channels):
         self.config, self.k = config, channels
@@ -72,7 +72,7 @@ class ReferenceDsp:
 
     def reading(self, voltage):
         v = np.clip(voltage, -self.config.adc_range_v, self.config.adc_range_v - self.lsb)
-        return -self.config.scale_n_per_v * np.floor(v / self.lsb + 0.5) * self.lsb
+        return (-self.config.scale_n_per_v * self.lsb) * np.floor(v / self.lsb + 0.5)
 
     def force(self, voltage):
         if self.state[self.k] == 0:
@@ -89,7 +89,9 @@ class ReferenceDsp:
 
 
 def bits(values):
-    return np.asarray(values, dtype=float).view(np.int64)
+    """The values' bits, a zero of either sign as +0 (the sign of a zero
+    force is no measurement)."""
+    return (np.asarray(values, dtype=float) + 0.0).view(np.int64)
 
 
 def bit_identity_cases():

@@ -107,15 +107,10 @@ class DspForceInput(Diagram):
     State (discrete): tare sum (channels), sample count (1), offset (channels).
 
     A Drake ``SymbolicVectorSystem`` (inside this diagram, named
-    ``adc_tare``) computes it: no Python runs per step. The expressions do the
-    floating-point operations of the former Python LeafSystem (kept as
-    the reference in ``tests/test_dsp.py``) in the same order, so the results
-    are bit-identical (that test checks it): Drake folds
-    constant factors of a product (``-scale * n * lsb`` would become
-    ``(-scale * lsb) * n``), which an opaque ``max(., -inf)`` around
-    ``-scale * n`` prevents, and a sum starts at +0 (``0 + -0 = +0``), which
-    the ``offset == 0`` branch of the output keeps from changing the sign of
-    a zero force.
+    ``adc_tare``) computes it: no Python runs per step. A reading is the
+    count n times the force per count, ``(-scale * lsb) * n`` (one constant:
+    Drake folds the constant factors of a product); ``tests/test_dsp.py``
+    checks every operation against the same arithmetic in numpy, bit for bit.
     """
 
     def __init__(self, config: DspConfig, channels=1):
@@ -129,19 +124,18 @@ class DspForceInput(Diagram):
         count = Variable("tare_count")
         offset = [Variable(f"tare_offset_{i}") for i in range(k)]
         hi = config.adc_range_v - lsb
-        # -scale * floor(clip(v) / lsb + 0.5) * lsb, as ((-scale * n) * lsb).
-        reading = [_opaque(-config.scale_n_per_v * floor(
-            sym_min(sym_max(v, -config.adc_range_v), hi) / lsb + 0.5)) * lsb for v in voltage]
+        # The count n = floor(clip(v) / lsb + 0.5), times the force per count.
+        per_count = -config.scale_n_per_v * lsb
+        reading = [per_count * floor(sym_min(sym_max(v, -config.adc_range_v), hi) / lsb + 0.5)
+                   for v in voltage]
         taring = t < config.tare_window_s - TIME_TOLERANCE_S
         dynamics = ([if_then_else(taring, s + r, s) for s, r in zip(total, reading)]
                     + [if_then_else(taring, count + 1, count)]
                     + [if_then_else(taring, (s + r) / (count + 1), o)
                        for s, r, o in zip(total, reading, offset)])
         # Before the first tare sample (count 0) the offset is this very
-        # reading: 0 N. The offset is never -0 (the sum starts at +0), so
-        # reading - 0 is the reading itself.
-        output = [if_then_else(count == 0, 0.0, if_then_else(o == 0, r, r - o))
-                  for r, o in zip(reading, offset)]
+        # reading: 0 N.
+        output = [if_then_else(count == 0, 0.0, r - o) for r, o in zip(reading, offset)]
         builder = DiagramBuilder()
         adc = builder.AddNamedSystem("adc_tare", SymbolicVectorSystem(
             time=t, state=total + [count] + offset, input=voltage, dynamics=dynamics,
@@ -149,12 +143,6 @@ class DspForceInput(Diagram):
         builder.ExportInput(adc.get_input_port(), "voltage")
         builder.ExportOutput(adc.get_output_port(), "force")
         builder.BuildInto(self)
-
-
-def _opaque(e):
-    """``e`` behind a node Drake's simplifier does not see through:
-    max(e, -inf) is e for every e (NaN included), one comparison."""
-    return sym_max(e, -np.inf)
 
 
 def AddDspForceInput(builder: DiagramBuilder, config: DspConfig, fine_period, ticks, *,
