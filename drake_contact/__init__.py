@@ -42,8 +42,8 @@ _EXPORTS = {
     "drake_contact.measured": ("MeasuredSignals",),
     "drake_contact.plant.arm": ("ApplySampledUpdates", "CalcSampledUpdate"),
     "drake_contact.plugins": (
-        "ContactDetector", "MakeController", "MakeIdentifier", "installed_controllers",
-        "installed_identifiers"),
+        "ContactDetector", "Declaration", "MakeController", "MakeIdentifier", "declare",
+        "installed_controllers", "installed_identifiers", "typed_options"),
     "drake_contact.scenario": ("Scenario", "dump_scenario", "load_scenario"),
 }
 _MODULE_OF = {name: module for module, names in _EXPORTS.items() for name in names}
@@ -79,7 +79,7 @@ __all__ = [
     "FaultKind", "StudyCase", "register_fault_kind",
     # Plug-in controllers and identifiers (entry points; see drake_contact.plugins)
     "MakeController", "MakeIdentifier", "installed_controllers", "installed_identifiers",
-    "ContactDetector",
+    "ContactDetector", "declare", "Declaration", "typed_options",
     # Testing one sampled system (controller, identifier) without a simulator
     "ApplySampledUpdates", "CalcSampledUpdate",
     # Plotting (on your own axes; no backend is set)

@@ -47,7 +47,7 @@ from drake_contact.plant.joint_physics import (
     AddEncoders, AddJointFriction, AddTorqueSaturation, check_friction_stability,
     encoder_reading)
 from drake_contact.plant.tip_kinematics import TipKinematics
-from drake_contact.plugins import ContactDetector, MakeController
+from drake_contact.plugins import ContactDetector, MakeController, controller_declaration
 from drake_contact.scenario import Scenario
 from drake_contact.sensing.dsp import AddDspForceInput
 from drake_contact.sensing.estimator import AddKinematicEstimator
@@ -151,13 +151,12 @@ def _add_controller(builder, scenario, plant, measured: MeasuredSignals):
     return controller, ports
 
 
-#: Controller outputs the station exports when a controller has them.
+#: Controller outputs the station exports under their own names when a
+#: controller has them (a controller declares more in its ``signals``).
 CONTROLLER_SIGNALS = {
     "mode": "controller mode: 0 approach, 1 contact",
     "force_desired": "desired normal force f_d (N)",
     "contact_info": "[first switch time (s) or -1, x, y, phi at the switch] (s, m, rad)",
-    "nn_output": "compensator output n = [n_x (N), n_y (N), n_phi (N m)]",
-    "hybrid_torque": "the hybrid part's command tau_h, before J^T n (N m)",
 }
 
 
@@ -341,7 +340,9 @@ def _add_control(builder, scenario, plant, measured, faults) -> _Control:
         for name, port in measured.items():
             if identifiers.HasInputPort(name):
                 builder.Connect(port, identifiers.GetInputPort(name))
-        builder.Connect(controller["contact_info"], identifiers.GetInputPort("contact_info"))
+        if identifiers.HasInputPort("contact_info"):
+            builder.Connect(controller["contact_info"],
+                            identifiers.GetInputPort("contact_info"))
     if controller_system.HasInputPort("impedance_estimate"):
         source = scenario.controller.impedance_source_name()
         if not source:
@@ -437,14 +438,15 @@ def _export_measured(export, sensing):
 def _export_controller(export, scenario, control):
     controller, identifiers = control.outputs, control.identifiers
     detected = not control.system.HasOutputPort("contact_info")
-    for name, meaning in CONTROLLER_SIGNALS.items():
+    declared = controller_declaration(scenario.controller.name)
+    signals = CONTROLLER_SIGNALS | declared.signals
+    for name, meaning in signals.items():
         if name in controller:
             if detected and name in DETECTOR_SIGNALS:
                 meaning = DETECTOR_SIGNALS[name]
             export(name, controller[name], meaning)
     for name, port in controller.items():
-        if name not in CONTROLLER_SIGNALS and name not in ("joint_torque_commanded",
-                                                           "tip_jacobian"):
+        if name not in signals and name not in ("joint_torque_commanded", *declared.unlogged):
             export(f"controller_{name}", port,
                    f"controller '{scenario.controller.name}' output {name}")
     if identifiers is not None:

@@ -15,8 +15,15 @@ same way, in this project's own ``pyproject.toml``.
 The station (:func:`drake_contact.diagram.MakeContactDiagram`) connects the
 controller's input ports **by name** from :data:`CONTROLLER_INPUTS` and takes
 its ``joint_torque_commanded`` output (3, N m); every other vector output is
-logged (the ones of :data:`drake_contact.diagram.CONTROLLER_SIGNALS` under
-their own names, others as ``controller_<port>``). A controller that has no
+logged (the ones of :data:`drake_contact.diagram.CONTROLLER_SIGNALS` and of
+the factory's declared ``signals`` under their own names, others as
+``controller_<port>``).
+
+A factory may declare how it is configured and logged with :func:`declare`
+(:class:`Declaration`): its options are then checked when the scenario
+loads, and the scenario, the station and the benchmark read the rest from
+there, so a new controller or identifier is its module plus one
+entry-point line. A controller that has no
 ``contact_info`` output gets the station's :class:`ContactDetector`, which
 tells contact from the filtered force for the force reference, the
 identifiers and the metrics. Everything a controller needs that evolves in
@@ -37,6 +44,7 @@ exit status 2).
 """
 
 import dataclasses as dc
+from collections.abc import Callable
 from importlib.metadata import entry_points
 
 from pydrake.systems.framework import (
@@ -45,6 +53,7 @@ from pydrake.systems.primitives import Demultiplexer
 
 from drake_contact.constants import CONTACT_THRESHOLD_N
 from drake_contact.errors import ScenarioError
+from drake_contact.options import config_from_options
 from drake_contact.plant.arm import DeclareSampledUpdate, is_sample_time
 
 #: Entry-point groups of controller and identifier factories.
@@ -87,6 +96,109 @@ IDENTIFIER_REQUIRED_OUTPUTS = {
 }
 
 
+@dc.dataclass(frozen=True)
+class Declaration:
+    """What a controller's or identifier's factory says of itself, through
+    :func:`declare`; every field is optional, and a factory without one
+    gets the defaults (options checked only as names to values)."""
+
+    # Called with the scenario's options mapping when the scenario loads;
+    # raises ScenarioError naming the field, so a bad option fails there in
+    # one line, before anything runs (see :func:`typed_options`).
+    check_options: Callable | None = None
+    # The typed sections of the scenario's entry that configure it instead
+    # of ``options`` (the thesis's: ``controller.hybrid``, ``identifiers[i].rls``
+    # ...); the factory gets the one section's fields, or {section: fields}.
+    sections: tuple = ()
+    # A controller: the section field naming the identifier whose estimate
+    # feeds its ``impedance_estimate`` (else ``controller.impedance_source``).
+    impedance_source: str = ""
+    # A controller: outputs logged under their own name, with their meaning
+    # (any other output is logged as ``controller_<port>``), and outputs not
+    # logged at all.
+    signals: dict = dc.field(default_factory=dict)
+    unlogged: tuple = ()
+    # A controller: ranked by ``drake-contact benchmark`` unless asked not
+    # to be (test harnesses).
+    contender: bool = True
+    # An identifier: its options also carry the run's ``seed``.
+    seeded: bool = False
+
+
+def declare(**fields):
+    """Decorates a factory with its :class:`Declaration`::
+
+        @declare(check_options=typed_options(MyConfig, "controller.options"))
+        def make_controller(options: dict) -> System: ...
+    """
+    declaration = Declaration(**fields)
+
+    def mark(factory):
+        factory.declaration = declaration
+        return factory
+    return mark
+
+
+def typed_options(schema, prefix: str) -> Callable:
+    """An options check: the mapping must hold fields of the dataclass
+    ``schema`` of their types, and pass its ``validate`` (errors name
+    ``prefix.<field>``)."""
+    return lambda options: config_from_options(schema, options, prefix)
+
+
+def controller_declaration(name: str, field="controller.name") -> Declaration:
+    """The installed controller ``name``'s declaration (ScenarioError if it
+    is not installed or does not load)."""
+    return _declaration(_load(installed_controllers(), "controller", name, field)[0])
+
+
+def identifier_declaration(kind: str, field="identifiers[0].kind") -> Declaration:
+    """The installed identifier ``kind``'s declaration."""
+    return _declaration(_load(installed_identifiers(), "identifier", kind, field)[0])
+
+
+def configured_options(entry, declared: Declaration) -> dict:
+    """The options mapping a factory gets from its scenario ``entry`` (a
+    ControllerConfig or IdentifierConfig): its declared section's fields,
+    {section: fields} for several, else ``entry.options``."""
+    if len(declared.sections) == 1:
+        return dc.asdict(getattr(entry, declared.sections[0]))
+    if declared.sections:
+        return {section: dc.asdict(getattr(entry, section)) for section in declared.sections}
+    return dict(entry.options)
+
+
+def check_configuration(entry, declared: Declaration, prefix: str, what: str):
+    """Validates what configures a scenario ``entry``'s factory: its declared
+    sections (options then refused), else its options (names to values,
+    then the declared check)."""
+    if declared.sections:
+        if entry.options:
+            sections = " and ".join(f"{prefix}.{section}" for section in declared.sections)
+            raise ScenarioError(f"{prefix}.options: the built-in '{what}' is configured by "
+                                f"{sections}, not by options")
+        for section in declared.sections:
+            getattr(entry, section).validate(f"{prefix}.{section}")
+    check_options_mapping(entry.options, f"{prefix}.options")
+    if declared.check_options is not None:
+        declared.check_options(dict(entry.options))
+
+
+def check_options_mapping(options, prefix):
+    """A plug-in's options: a mapping of names to numbers, strings, true or
+    false, or lists of those."""
+    if not isinstance(options, dict):
+        raise ScenarioError(f"{prefix} must be a mapping of names to values, got {options!r}")
+    scalar = (int, float, str, bool)
+    for key, value in options.items():
+        if not isinstance(key, str) or not key.isidentifier():
+            raise ScenarioError(f"{prefix}: option name {key!r} is not a valid name")
+        if not (isinstance(value, scalar)
+                or isinstance(value, list) and all(isinstance(v, scalar) for v in value)):
+            raise ScenarioError(f"{prefix}.{key} = {value!r} must be a number, a string, "
+                                "true/false or a list of those")
+
+
 def installed_controllers() -> dict:
     """{name: entry point} of every controller installed (built-ins too)."""
     return {ep.name: ep for ep in entry_points(group=CONTROLLER_GROUP)}
@@ -102,7 +214,8 @@ def _one_line(e: Exception) -> str:
     return f"{type(e).__name__}: {text[0]}" if text else type(e).__name__
 
 
-def _build(found, kind, name, options, field):
+def _load(found, kind, name, field):
+    """(factory, where) of an installed plug-in."""
     if name not in found:
         raise ScenarioError(f"{field} = '{name}' is not an installed {kind}: "
                             f"choose one of {', '.join(sorted(found))}")
@@ -111,6 +224,16 @@ def _build(found, kind, name, options, field):
         factory = found[name].load()
     except Exception as e:  # a broken plug-in must not take the CLI down
         raise ScenarioError(f"{where} could not be loaded: {_one_line(e)}") from None
+    return factory, where
+
+
+def _declaration(factory) -> Declaration:
+    found = getattr(factory, "declaration", None)
+    return found if isinstance(found, Declaration) else Declaration()
+
+
+def _build(found, kind, name, options, field):
+    factory, where = _load(found, kind, name, field)
     try:
         system = factory(dict(options))
     except ScenarioError:

@@ -30,7 +30,9 @@ from drake_contact.plant.joint_physics import (
     THESIS_TORQUE_LIMITS, EncoderConfig, JointFrictionConfig)
 from drake_contact.control.push_controller import PushConfig
 from drake_contact.options import YAML12_FLOAT as _YAML12_FLOAT, check_schema as _check_schema
-from drake_contact.plugins import installed_controllers
+from drake_contact.plugins import (
+    check_configuration, check_options_mapping, configured_options, controller_declaration,
+    installed_controllers)
 from drake_contact.resources import bundled_scenario_names, scenarios_dir
 
 class _Loader(yaml.SafeLoader):
@@ -52,11 +54,6 @@ def yaml_load(text):
     return _yaml_load(text)
 
 
-#: Built-in controllers configured by their own typed section of
-#: ``controller`` (every other installed controller takes ``controller.options``).
-TYPED_CONTROLLERS = ("push", "hybrid", "nn")
-
-
 @dc.dataclass
 class ControllerConfig:
     """Which controller commands the joints, and its parameters."""
@@ -71,8 +68,9 @@ class ControllerConfig:
     # The neural-network compensator added to ``hybrid`` (name: nn, section 4.5).
     nn: NnCompensatorConfig = dc.field(default_factory=NnCompensatorConfig)
 
-    # Options of a plug-in controller (names to numbers, lists or strings),
-    # handed to its factory. The typed built-ins take their section above.
+    # Options of any other controller (names to numbers, lists or strings),
+    # handed to its factory and checked as it declares. The thesis's
+    # controllers take their sections above.
     options: dict[str, float] = dc.field(default_factory=dict)
     # Name of an identifier whose [M_e, B_e, K_e] feeds the controller's
     # ``impedance_estimate`` input ('' = none; the thesis's decoupled law names
@@ -85,46 +83,21 @@ class ControllerConfig:
             raise ScenarioError(
                 f"{prefix}.name = '{self.name}' is unknown: choose one of "
                 f"{', '.join(sorted(installed))}")
-        if self.name in TYPED_CONTROLLERS:
-            if self.options:
-                raise ScenarioError(
-                    f"{prefix}.options: the built-in '{self.name}' is configured by "
-                    f"{prefix}.{'hybrid and ' + prefix + '.nn' if self.name == 'nn' else self.name}, "
-                    "not by options")
-            if self.name == "nn":
-                self.hybrid.validate(f"{prefix}.hybrid")
-            getattr(self, self.name).validate(f"{prefix}.{self.name}")
-        _check_options(self.options, f"{prefix}.options")
+        check_configuration(self, controller_declaration(self.name, f"{prefix}.name"), prefix,
+                            self.name)
 
     def factory_options(self) -> dict:
-        """The options mapping the controller's factory gets: the typed
-        section of a typed built-in, ``options`` otherwise."""
-        if self.name == "nn":
-            return {"hybrid": dc.asdict(self.hybrid), "nn": dc.asdict(self.nn)}
-        if self.name in TYPED_CONTROLLERS:
-            return dc.asdict(getattr(self, self.name))
-        return dict(self.options)
+        """The options mapping the controller's factory gets: its declared
+        sections (:class:`drake_contact.plugins.Declaration`), else ``options``."""
+        return configured_options(self, controller_declaration(self.name))
 
     def impedance_source_name(self) -> str:
         """The identifier feeding ``impedance_estimate`` ('' = none)."""
-        if self.name in ("hybrid", "nn"):
-            return self.hybrid.stiffness_source
+        declared = controller_declaration(self.name).impedance_source
+        if declared:
+            section, field = declared.split(".")
+            return getattr(getattr(self, section), field)
         return self.impedance_source
-
-
-def _check_options(options, prefix):
-    """A plug-in's options: a mapping of names to numbers, strings, true or
-    false, or lists of those."""
-    if not isinstance(options, dict):
-        raise ScenarioError(f"{prefix} must be a mapping of names to values, got {options!r}")
-    scalar = (int, float, str, bool)
-    for key, value in options.items():
-        if not isinstance(key, str) or not key.isidentifier():
-            raise ScenarioError(f"{prefix}: option name {key!r} is not a valid name")
-        if not (isinstance(value, scalar)
-                or isinstance(value, list) and all(isinstance(v, scalar) for v in value)):
-            raise ScenarioError(f"{prefix}.{key} = {value!r} must be a number, a string, "
-                                "true/false or a list of those")
 
 
 @dc.dataclass
@@ -337,7 +310,7 @@ def scenario_from_data(data: dict, *, source="scenario") -> Scenario:
             "at t_n (the thesis's timing, the only one); delete the line")
     _check_schema(Scenario, data, prefix="")
     # A plug-in's options are free-form (Drake's typed YAML has no "any"):
-    # they bypass the typed load and are checked by _check_options.
+    # they bypass the typed load and are checked as their factory declares.
     controller = data.get("controller")
     options = controller.pop("options", {}) if isinstance(controller, dict) else {}
     identifiers = data.get("identifiers") or []
@@ -356,7 +329,7 @@ def scenario_from_data(data: dict, *, source="scenario") -> Scenario:
         config.options = identifier_options[i] or {}
         if identifier_options[i]:
             entry["options"] = identifier_options[i]
-        _check_options(config.options, f"identifiers[{i}].options")
+        check_options_mapping(config.options, f"identifiers[{i}].options")
     scenario.validate()
     return scenario
 

@@ -54,7 +54,8 @@ from drake_contact.app.campaign import (
     Campaign, CampaignResult, Point, failure_message, finished_metrics, run_campaign, run_status)
 from drake_contact.errors import ScenarioError
 from drake_contact.plant.arm import TIME_TOLERANCE_S
-from drake_contact.plugins import installed_controllers, installed_identifiers
+from drake_contact.plugins import (
+    controller_declaration, identifier_declaration, installed_controllers, installed_identifiers)
 from drake_contact.resources import scenarios_dir
 from drake_contact.scenario import yaml_load
 
@@ -75,8 +76,6 @@ SCENARIO_CONTENDERS = {
     "nn_robust": ("nn_robust", ("controller",)),
     "adaptive_hybrid": ("adaptive_hybrid", CONTENDER_SECTIONS),
 }
-#: Installed controllers left out unless asked for: test harnesses.
-NOT_CONTENDERS = ("push",)
 
 _SQUARE = ["force_reference.levels=[20.0, 10.0]", "force_reference.half_period_s=2.5"]
 #: Task name -> (what it is, overrides of the base scenario).
@@ -143,7 +142,8 @@ def contender_names(requested=None) -> list:
     installed = installed_controllers()
     known = list(SCENARIO_CONTENDERS) + sorted(set(installed) - set(SCENARIO_CONTENDERS))
     if not requested:
-        return [name for name in known if name not in NOT_CONTENDERS]
+        return [name for name in known if name in SCENARIO_CONTENDERS
+                or controller_declaration(name).contender]
     names = [name.strip() for name in requested.split(",") if name.strip()]
     for name in names:
         if name not in known:
@@ -213,7 +213,8 @@ def identifier_entries() -> dict:
     own = yaml_load((scenarios_dir() / f"{IDENTIFIER_SCENARIO}.yaml").read_text())
     entries = {entry["name"]: entry for entry in own["identifiers"]}
     for kind in sorted(installed_identifiers()):
-        if kind not in ("rls", "nn") and kind not in entries:
+        # The thesis's kinds (configured by sections) are there as the scenario has them.
+        if not identifier_declaration(kind).sections and kind not in entries:
             entries[kind] = {"name": kind, "kind": kind}
     for entry in entries.values():
         entry.pop("figures", None)

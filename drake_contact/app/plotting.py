@@ -537,7 +537,8 @@ def plot_identification_figures(log: dict, scenario, out_dir) -> list[Path]:
         second = {c.figures[1] for c in configs if len(c.figures) > 1}
         for number in sorted(second):
             stem2 = f"fig{number.replace('.', '_')}"
-            if configs[0].kind == "rls":
+            # A network's second figure is its output error; another's, the whole run.
+            if log.get(f"force_estimate_{configs[0].name}") is None:
                 paths.append(_plot_identification(
                     log, t, t_c, configs, t[-1] - t_c,
                     f"Fig {number}: identification over the whole run, {scenario.description}",

@@ -81,6 +81,7 @@ from drake_contact.errors import ScenarioError
 from drake_contact.plant.arm import (
     CONTROL_PERIOD, TIME_TOLERANCE_S, DeclareSampledUpdate, is_sample_time)
 from drake_contact.plant.planar_arm import solve3
+from drake_contact.plugins import declare
 
 APPROACH, CONTACT = 0, 1
 OPTIONS_PREFIX = "controller.options"
@@ -495,18 +496,21 @@ class BaselineController(Diagram):
         builder.BuildInto(self)
 
 
+@declare(check_options=lambda options: _config_from_options(ImpedanceConfig, "impedance", options))
 def impedance(options: dict) -> BaselineController:
     """The impedance baseline from ``controller.options`` (a plain dict)."""
     return BaselineController(
         ImpedanceControlLaw(_config_from_options(ImpedanceConfig, "impedance", options)))
 
 
+@declare(check_options=lambda options: _config_from_options(AdmittanceConfig, "admittance", options))
 def admittance(options: dict) -> BaselineController:
     """The admittance baseline from ``controller.options`` (a plain dict)."""
     return BaselineController(
         AdmittanceControlLaw(_config_from_options(AdmittanceConfig, "admittance", options)))
 
 
+@declare(check_options=lambda options: _config_from_options(ParallelForceConfig, "parallel_force", options))
 def parallel_force(options: dict) -> BaselineController:
     """The parallel force/position baseline from ``controller.options``."""
     return BaselineController(ParallelForceControlLaw(

@@ -6,7 +6,8 @@ project's ``pyproject.toml``, exactly as a third-party controller registers
 returns one Drake System whose ports follow the plug-in contract. For these
 three the station passes the scenario's typed section as the options
 (``controller.push``, ``controller.hybrid``, or both ``hybrid`` and ``nn``
-for ``nn``), so the thesis's scenarios keep their YAML.
+for ``nn``), as each one's :func:`~drake_contact.plugins.declare` says, so
+the thesis's scenarios keep their YAML.
 """
 
 import dataclasses as dc
@@ -20,8 +21,10 @@ from drake_contact.control.nn_compensator import NnCompensator, NnCompensatorCon
 from drake_contact.control.push_controller import ConstantForcePushController, PushConfig
 from drake_contact.plant.arm import MakeArmModel
 from drake_contact.options import config_from_options
+from drake_contact.plugins import declare
 
 
+@declare(sections=("push",), contender=False)
 def push(options: dict):
     """The constant-force pushing harness (:class:`ConstantForcePushController`);
     options: the fields of :class:`PushConfig`. Reads the true plant state."""
@@ -66,6 +69,8 @@ def _export_hybrid(builder, hybrid, config: HybridControllerConfig):
         builder.Connect(stiffness.get_output_port(), hybrid.GetInputPort("stiffness_estimate"))
 
 
+@declare(sections=("hybrid",), impedance_source="hybrid.stiffness_source",
+         unlogged=("tip_jacobian",))
 def hybrid(options: dict):
     """The thesis's hybrid controller; options: the fields of
     :class:`HybridControllerConfig`."""
@@ -115,6 +120,10 @@ class ThesisNnController(Diagram):
         builder.BuildInto(self)
 
 
+@declare(sections=("hybrid", "nn"), impedance_source="hybrid.stiffness_source",
+         unlogged=("tip_jacobian",), signals={
+             "nn_output": "compensator output n = [n_x (N), n_y (N), n_phi (N m)]",
+             "hybrid_torque": "the hybrid part's command tau_h, before J^T n (N m)"})
 def nn(options: dict):
     """The neural-network controller; options: ``hybrid`` (the fields of
     :class:`HybridControllerConfig`) and ``nn`` (of :class:`NnCompensatorConfig`)."""

@@ -58,10 +58,10 @@ from drake_contact.sensing.filters import butterworth_digital, digital_filter_sy
 from drake_contact.identification.nn_identifier import NnIdentifier, NnIdentifierConfig
 from drake_contact.identification.rls_identifier import RlsConfig, RlsIdentifier
 from drake_contact.options import config_from_options
-from drake_contact.plugins import MakeIdentifier, installed_identifiers
+from drake_contact.plugins import (
+    MakeIdentifier, check_configuration, configured_options, declare, identifier_declaration,
+    installed_identifiers)
 
-#: The built-in identifiers, configured by their own typed section.
-KINDS = ("rls", "nn")
 SIGNALS = ("filtered", "raw", "matched", "raw_matched")
 CHAIN_MODELS = ("bilinear", "zoh")
 _MEASURED_FIELDS = [field.name for field in dc.fields(MeasuredSignals)]
@@ -103,11 +103,9 @@ class IdentifierConfig:
         """The options mapping the identifier's factory gets: the built-ins'
         typed section (the network also its weights' ``seed``), else
         ``options``."""
-        if self.kind == "rls":
-            return dc.asdict(self.rls)
-        if self.kind == "nn":
-            return dc.asdict(self.nn) | {"seed": seed}
-        return dict(self.options)
+        declared = identifier_declaration(self.kind)
+        options = configured_options(self, declared)
+        return options | {"seed": seed} if declared.seeded else options
 
     def validate(self, prefix):
         if not self.name.isidentifier():
@@ -117,17 +115,14 @@ class IdentifierConfig:
         if self.kind not in installed:
             raise ScenarioError(f"{prefix}.kind = '{self.kind}' is unknown: choose one of "
                                 f"{', '.join(sorted(installed))}")
-        if self.kind in KINDS and self.options:
-            raise ScenarioError(f"{prefix}.options: the built-in '{self.kind}' is configured by "
-                                f"{prefix}.{self.kind}, not by options")
+        check_configuration(self, identifier_declaration(self.kind, f"{prefix}.kind"), prefix,
+                            self.kind)
         if self.signals not in SIGNALS:
             raise ScenarioError(f"{prefix}.signals = '{self.signals}' is unknown: choose one of "
                                 f"{', '.join(SIGNALS)}")
         if self.chain_model not in CHAIN_MODELS:
             raise ScenarioError(f"{prefix}.chain_model = '{self.chain_model}' is unknown: choose "
                                 f"one of {', '.join(CHAIN_MODELS)}")
-        if self.kind in KINDS:
-            getattr(self, self.kind).validate(f"{prefix}.{self.kind}")
         if len(self.figures) > 2 or not all(
                 all(part.isdigit() for part in str(f).split(".")) for f in self.figures):
             raise ScenarioError(f"{prefix}.figures = {self.figures} is out of range: at most 2 "
@@ -244,12 +239,14 @@ _SOURCES["matched"] = _SOURCES["filtered"]
 _SOURCES["raw_matched"] = _SOURCES["raw"]
 
 
+@declare(sections=("rls",))
 def rls(options: dict):
     """The built-in RLS identifier (registered as ``rls``); options: the
     fields of :class:`RlsConfig`."""
     return RlsIdentifier(config_from_options(RlsConfig, options, "identifiers.rls"))
 
 
+@declare(sections=("nn",), seeded=True)
 def nn(options: dict):
     """The built-in neural identifier (registered as ``nn``); options: the
     fields of :class:`NnIdentifierConfig` and ``seed`` (its initial weights)."""
