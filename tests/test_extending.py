@@ -1,8 +1,9 @@
-"""A controller and an identifier added the documented way (README,
-"Adding a controller", "Adding an identifier"): a factory with its
-declaration, in a package of its own registered by one entry-point line
-each; then the scenario validates its options when it loads, the station
-wires and logs it, a run scores it, and the benchmark lists it."""
+"""A controller, an identifier and a metric added the documented way
+(README, "Adding a controller", "Adding an identifier", "Adding a
+metric"): a factory with its declaration, in a package of its own
+registered by one entry-point line each, or a metric function with its
+Score; then the scenario validates it when it loads, the station wires and
+logs it, a run scores it, and the benchmark lists or ranks it."""
 
 import sys
 import textwrap
@@ -138,3 +139,44 @@ def test_an_identifier_is_validated_wired_and_listed(toy_package):
     assert "impedance_c" in MakeContactDiagram(scenario).signals
     assert identifier_entries()["constant"] == {"name": "constant", "kind": "constant"}
 
+
+
+def test_a_metric_is_computed_scored_and_ranked(tmp_path):
+    """A metric function with its Score, registered inside the test: every
+    run's metrics.json has it, the benchmark puts it in runs.csv, takes its
+    median and worst over the walls and shows the column it asks for."""
+    import json
+
+    import numpy as np
+
+    from drake_contact.app import benchmark
+    from drake_contact.scoring.metrics import Score, register_metric, unregister_metric
+
+    score = Score("deepest_mm", "deepest_penetration_m", "deepest (mm)", ("worst",), 3,
+                  scale=1e3)
+
+    @register_metric(score)
+    def deepest(log, scenario):
+        return {"deepest_penetration_m": float(np.max(log["penetration_true"]))}
+
+    try:
+        result = simulate_scenario(load_scenario("push_constant", duration=2.6))
+        deep = result.metrics["deepest_penetration_m"]
+        assert 0 < deep == pytest.approx(float(np.max(result.log["penetration_true"])))
+        with pytest.raises(ValueError, match="the score column 'deepest_mm' is taken"):
+            register_metric(Score("deepest_mm", "other"))(lambda log, scenario: {})
+        run_dir = tmp_path / "run"
+        run_dir.mkdir()
+        (run_dir / "metrics.json").write_text(json.dumps(result.metrics | {"contact_time_s": 2.1}))
+        run = benchmark.Run("toy", "hold", 0, 5000.0, 30.0)
+        row = benchmark.score_run(run, run_dir)
+        assert row["deepest_mm"] == pytest.approx(1e3 * deep)
+        board = benchmark.aggregate([row], ["toy"], ["hold"])
+        assert board[0]["deepest_mm_worst"] == pytest.approx(1e3 * deep)
+        text = benchmark.markdown(board, "toy", benchmark.Suite(
+            walls=((5000.0, 30.0),), tasks=("hold",), duration_s=16.0, window_s=(1.0, 6.0)))
+        assert "| deepest (mm) |" in text and f"| {1e3 * deep:.3f} |" in text
+    finally:
+        unregister_metric(deepest)
+    assert "deepest_penetration_m" not in simulate_scenario(
+        load_scenario("push_constant", duration=0.6)).metrics

@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import ConstantVectorSource
 
 from drake_contact import ScenarioError, load_scenario
 from drake_contact.app.fault_study import fault_cases

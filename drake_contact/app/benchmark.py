@@ -53,7 +53,7 @@ import numpy as np
 from drake_contact.app.campaign import (
     Campaign, CampaignResult, Point, failure_message, finished_metrics, run_campaign, run_status)
 from drake_contact.errors import ScenarioError
-from drake_contact.plant.arm import TIME_TOLERANCE_S
+from drake_contact.scoring.metrics import SCORES
 from drake_contact.plugins import (
     controller_declaration, identifier_declaration, installed_controllers, installed_identifiers)
 from drake_contact.resources import scenarios_dir
@@ -118,23 +118,6 @@ SUITES = {
                (50000.0, 280.0), (80000.0, 45.0), (120000.0, 150.0), (145000.0, 11.0)),
         tasks=tuple(TASKS), duration_s=30.0, window_s=(2.0, 20.0)),
 }
-
-#: Per-run scores: (column of runs.csv, metrics.json key or None: computed
-#: here); leaderboard.csv has each one's median and worst over the walls.
-SCORES = [
-    ("force_rmse_n", "force_rmse_n"),
-    ("worst_window_rmse_n", None),
-    ("step_overshoot_pct", "step_overshoot_pct"),
-    ("step_settling_s", "step_settling_s"),
-    ("step_unsettled", "step_unsettled"),
-    ("contact_losses", "contact_losses"),
-    ("impact_peak_force_n", "impact_peak_force_n"),
-    ("y_max_abs_error_mm", "y_max_abs_error_m"),
-    ("phi_max_abs_error_mrad", "phi_max_abs_error_rad"),
-    ("torque_rms_nm", "torque_rms_nm"),
-]
-_SCALE = {"y_max_abs_error_m": 1e3, "phi_max_abs_error_rad": 1e3}
-
 
 def contender_names(requested=None) -> list:
     """The contenders: ``requested`` (comma-separated names, checked), or
@@ -339,7 +322,7 @@ def plan(contenders, suite: Suite) -> list:
             for i, (k, b) in enumerate(suite.walls)]
 
 
-def score_run(run: Run, run_dir: Path, suite: Suite) -> dict:
+def score_run(run: Run, run_dir: Path) -> dict:
     """One row of runs.csv."""
     row = {"contender": run.contender, "task": run.task, "wall": run.wall,
            "stiffness_n_per_m": run.stiffness, "damping_n_s_per_m": run.damping,
@@ -351,17 +334,9 @@ def score_run(run: Run, run_dir: Path, suite: Suite) -> dict:
     if status == "completed" and metrics.get("contact_time_s") is None:
         status = "no_contact"
     row |= {"status": status, "message": metrics.get("message", "")}
-    for column, key in SCORES:
-        if key is not None:
-            value = metrics.get(key)
-            row[column] = None if value is None else value * _SCALE.get(key, 1)
-    # Worst 5 s window (rmse_window_s) that lies inside the scoring window.
-    windows = metrics.get("force_rmse_windows_n") or []
-    width = 5.0
-    inside = [w for k, w in enumerate(windows)
-              if k * width >= suite.window_s[0] - TIME_TOLERANCE_S
-              and (k + 1) * width <= suite.window_s[1] + TIME_TOLERANCE_S]
-    row["worst_window_rmse_n"] = max(inside) if inside else None
+    for score in SCORES:
+        value = metrics.get(score.key)
+        row[score.column] = None if value is None else value * score.scale
     return row
 
 
@@ -400,10 +375,10 @@ def aggregate(rows, contenders, tasks) -> list:
                      "runs_losing_contact": sum(r["status"] == "lost_contact" for r in runs),
                      "runs_failed": sum(r["status"] in ("diverged", "failed", "no_contact")
                                         for r in runs), "_bad": bad}
-            for column, _ in SCORES:
-                values = [r.get(column) for r in runs]
-                entry[f"{column}_median"] = _median(values)
-                entry[f"{column}_worst"] = _max(values)
+            for score in SCORES:
+                values = [r.get(score.column) for r in runs]
+                entry[f"{score.column}_median"] = _median(values)
+                entry[f"{score.column}_worst"] = _max(values)
             entries.append(entry)
         board += _ranked(entries, lambda e: e["_bad"], "force_rmse_n_median")
     for contender in contenders:
@@ -447,19 +422,16 @@ def markdown(board, suite_name, suite: Suite, wall_s=None, rows=None) -> str:
                      f"{e['runs_losing_contact']}/{e['runs']} | {e['runs_failed']} | "
                      f"{_fmt(e['force_rmse_n_median'])} |")
     for task in suite.tasks:
+        shown = [score for score in SCORES if score.show]
         lines += ["", f"## {task}: {TASKS[task][0]}", "",
-                  "| rank | contender | lost contact | force RMSE median / worst (N) | worst 5 s "
-                  "window (N) | overshoot median (%) | settling median (s) | unsettled steps "
-                  "| y max (mm) | phi max (mrad) | torque RMS (N m) |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "| rank | contender | lost contact | "
+                  + " | ".join(score.header for score in shown) + " |",
+                  "|---|---|---|" + "---|" * len(shown)]
         for e in [e for e in board if e["task"] == task]:
-            lines.append(
-                f"| {e['rank']} | {e['contender']} | {e['runs_losing_contact']}/{e['runs']} "
-                f"| {_fmt(e['force_rmse_n_median'])} / {_fmt(e['force_rmse_n_worst'])} "
-                f"| {_fmt(e['worst_window_rmse_n_worst'])} | {_fmt(e['step_overshoot_pct_median'], 0)} "
-                f"| {_fmt(e['step_settling_s_median'])} | {_fmt(e['step_unsettled_worst'], 0)} "
-                f"| {_fmt(e['y_max_abs_error_mm_worst'])} | {_fmt(e['phi_max_abs_error_mrad_worst'], 1)} "
-                f"| {_fmt(e['torque_rms_nm_median'])} |")
+            cells = [" / ".join(_fmt(e[f"{score.column}_{aggregate}"], score.digits)
+                                for aggregate in score.show) for score in shown]
+            lines.append(f"| {e['rank']} | {e['contender']} | {e['runs_losing_contact']}/"
+                         f"{e['runs']} | " + " | ".join(cells) + " |")
         if rows is not None:
             contenders = [e["contender"] for e in board if e["task"] == task]
             lines += ["", "Each run's force RMSE (o; x: lost contact):", "", "```",
@@ -581,7 +553,7 @@ class BenchmarkCampaign(Campaign):
         if point.name in self.id_runs:
             return {"identifiers": score_identifiers(self.id_runs[point.name], run_dir,
                                                      self.identifiers)}
-        return {"runs": [score_run(self.runs[point.name], run_dir, self.suite)]}
+        return {"runs": [score_run(self.runs[point.name], run_dir)]}
 
     def aggregate(self, tables):
         found = {"leaderboard": aggregate(tables["runs"], self.contenders, self.suite.tasks)}

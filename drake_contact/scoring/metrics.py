@@ -50,6 +50,8 @@ stable``.
 """
 
 import copy
+import dataclasses as dc
+from importlib.metadata import entry_points
 
 import numpy as np
 
@@ -59,6 +61,73 @@ from drake_contact.control.safety_supervisor import (
     CLAMPED, REFLEX, SAFETY_STATES, STOP_REASONS)
 from drake_contact.plant.arm import CONTROL_PERIOD, RATIO_TOLERANCE, TIME_TOLERANCE_S
 from drake_contact.scenario import Scenario
+
+@dc.dataclass(frozen=True)
+class Score:
+    """How the benchmark ranks one metric: its ``runs.csv`` column (the
+    ``metrics.json`` value of ``key`` times ``scale``), that column's median
+    and worst over the walls in ``leaderboard.csv``, and a leaderboard
+    Markdown column headed ``header`` showing the aggregates of ``show``
+    (``"median"``, ``"worst"``; joined by " / ") with ``digits`` decimals
+    (``show`` empty: in the CSV files only)."""
+
+    column: str
+    key: str
+    header: str = ""
+    show: tuple = ()
+    digits: int = 2
+    scale: float = 1
+
+
+#: The benchmark's scores, in its columns' order (:func:`register_metric`
+#: adds more).
+SCORES = [
+    Score("force_rmse_n", "force_rmse_n", "force RMSE median / worst (N)", ("median", "worst")),
+    Score("worst_window_rmse_n", "worst_window_rmse_n", "worst 5 s window (N)", ("worst",)),
+    Score("step_overshoot_pct", "step_overshoot_pct", "overshoot median (%)", ("median",), 0),
+    Score("step_settling_s", "step_settling_s", "settling median (s)", ("median",)),
+    Score("step_unsettled", "step_unsettled", "unsettled steps", ("worst",), 0),
+    Score("contact_losses", "contact_losses"),
+    Score("impact_peak_force_n", "impact_peak_force_n"),
+    Score("y_max_abs_error_mm", "y_max_abs_error_m", "y max (mm)", ("worst",), scale=1e3),
+    Score("phi_max_abs_error_mrad", "phi_max_abs_error_rad", "phi max (mrad)", ("worst",), 1,
+          scale=1e3),
+    Score("torque_rms_nm", "torque_rms_nm", "torque RMS (N m)", ("median",)),
+]
+#: Metric functions ``(log, scenario) -> dict`` that :func:`compute_metrics`
+#: runs after its own (:func:`register_metric`).
+METRIC_FUNCTIONS = []
+#: Entry-point group of modules that register metrics from other packages.
+METRIC_GROUP = "drake_contact.metrics"
+
+
+def register_metric(*scores: Score):
+    """Decorates a function ``(log, scenario) -> dict`` of new metrics:
+    ``metrics.json`` then holds them (so do sweeps' ``results.csv``), and
+    each of ``scores`` (on one of its keys) ranks the benchmark's
+    contenders. A score's column must be new (the same score again is
+    taken)."""
+    def add(function):
+        for score in scores:
+            taken = next((s for s in SCORES if s.column == score.column), None)
+            if taken is not None and taken != score:
+                raise ValueError(f"register_metric: the score column '{score.column}' is taken")
+        if function not in METRIC_FUNCTIONS:
+            METRIC_FUNCTIONS.append(function)
+        SCORES.extend(s for s in scores if s not in SCORES)
+        function.scores = scores
+        return function
+    return add
+
+
+def unregister_metric(function):
+    """Removes a metric function and its scores (e.g. a test's)."""
+    if function in METRIC_FUNCTIONS:
+        METRIC_FUNCTIONS.remove(function)
+    for score in getattr(function, "scores", ()):
+        if score in SCORES:
+            SCORES.remove(score)
+
 
 #: Identification settling bars: K_e within 5 % (RLS), 10 % (the neural
 #: identifier).
@@ -125,6 +194,8 @@ def compute_metrics(scenario: Scenario, log: dict, wall_s: float) -> dict:
                 metrics[key] = bound
     metrics.update(fault_metrics(log, scenario))
     metrics.update(safety_metrics(log, scenario))
+    for function in METRIC_FUNCTIONS:
+        metrics.update(function(log, scenario))
     warnings = tare_warnings(log, scenario)
     if warnings:
         metrics["warnings"] = warnings
@@ -267,8 +338,10 @@ ADAPTATION_STEP_S = 0.5
 
 def adaptation_metrics(log: dict, t_contact: float, scoring) -> dict:
     """Force RMSE (true force vs f_d) per ``rmse_window_s`` window from the
-    switch, and the time from the switch to the end of the first sliding
-    window whose RMSE is below ``adaptation_rmse_n`` (None if none is)."""
+    switch, the largest of those that lie inside the scoring window
+    (``worst_window_rmse_n``, None if none does), and the time from the
+    switch to the end of the first sliding window whose RMSE is below
+    ``adaptation_rmse_n`` (None if none is)."""
     t = log["t"]
     error = log["contact_force_true"] - log["force_desired"]
     width = scoring.rmse_window_s
@@ -286,7 +359,12 @@ def adaptation_metrics(log: dict, t_contact: float, scoring) -> dict:
         if rmse(k * ADAPTATION_STEP_S) < scoring.adaptation_rmse_n:
             adaptation = k * ADAPTATION_STEP_S + width
             break
-    return {"force_rmse_windows_n": windows, "adaptation_time_s": adaptation}
+    inside = [w for k, w in enumerate(windows)
+              if k * width >= scoring.window_start_s - TIME_TOLERANCE_S
+              and (scoring.window_end_s == 0
+                   or (k + 1) * width <= scoring.window_end_s + TIME_TOLERANCE_S)]
+    return {"force_rmse_windows_n": windows, "adaptation_time_s": adaptation,
+            "worst_window_rmse_n": max(inside) if inside else None}
 
 
 def stability_metrics(log: dict, scoring) -> dict:
@@ -588,3 +666,8 @@ def safety_metrics(log: dict, scenario: Scenario) -> dict:
             reason = int(round(float(log["safety_stop_reason"][-1])))
             metrics["safety_stop_reason"] = STOP_REASONS[reason] if reason else None
     return metrics
+
+
+# Other packages' metrics: importing each module named in the group registers them.
+for _entry in entry_points(group=METRIC_GROUP):
+    _entry.load()
