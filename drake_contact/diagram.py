@@ -40,7 +40,7 @@ from drake_contact.control.safety_supervisor import (
 from drake_contact.errors import ScenarioError
 from drake_contact.faults import ChainFaults, FaultClock
 from drake_contact.identification.identifiers import AddIdentifiers
-from drake_contact.measured import MeasuredSignals
+from drake_contact.measured import MEASUREMENTS, MeasuredSignals
 from drake_contact.plant.arm import CONTROL_PERIOD, TIME_TOLERANCE_S, AddArmPlant, MakeArmModel
 from drake_contact.plant.compliant_wall import CompliantWall
 from drake_contact.plant.joint_physics import (
@@ -306,11 +306,9 @@ def _add_sensing(builder, scenario, plant, tip, wall, faults) -> _Sensing:
     if dsp.HasInputPort("voltage_frame"):
         builder.Connect(sensor.GetOutputPort("voltage_frame"), dsp.GetInputPort("voltage_frame"))
 
-    measured = MeasuredSignals(
-        force=dsp.GetOutputPort("force_filtered"), force_raw=dsp.GetOutputPort("force_measured"),
-        **{name: estimator.GetOutputPort(name) for name in (
-            "tip_pose", "tip_velocity", "tip_acceleration", "joint_positions",
-            "joint_velocities", "tip_velocity_raw", "tip_acceleration_raw")})
+    blocks = {"estimator": estimator, "dsp": dsp}
+    measured = MeasuredSignals(**{name: blocks[m.source].GetOutputPort(m.port)
+                                  for name, m in MEASUREMENTS.items()})
     return _Sensing(counted, dsp, measured)
 
 
@@ -420,19 +418,12 @@ def _export_sensing_and_control(export, scenario, sensing, control, friction):
 
 def _export_measured(export, sensing):
     measured, dsp = sensing.measured, sensing.dsp
-    export("force_measured", measured.force_raw, "DSP force after ADC, scale, sign and tare (N)")
-    export("force_filtered", measured.force, "force_measured through the 120 Hz Butterworth (N)")
+    for name, port in measured.items():
+        if MEASUREMENTS[name].signal:
+            export(MEASUREMENTS[name].signal, port, MEASUREMENTS[name].signal_meaning)
     if dsp.HasOutputPort("force_measured_antialiased"):
         export("force_measured_antialiased", dsp.GetOutputPort("force_measured_antialiased"),
                "second DSP channel through the 190 Hz RC filter (N)")
-    export("tip_pose_measured", measured.tip_pose, "estimated tip [x, y, phi] from encoders (m, rad)")
-    export("tip_velocity_measured", measured.tip_velocity, "estimated tip velocity (m/s, rad/s)")
-    export("tip_acceleration_measured", measured.tip_acceleration,
-           "estimated tip acceleration (m/s^2, rad/s^2)")
-    export("joint_positions_estimated", measured.joint_positions,
-           "q1, q2 as read, q3 filtered (rad)")
-    export("joint_velocities_estimated", measured.joint_velocities,
-           "joint velocities by backward differences (rad/s)")
 
 
 def _export_controller(export, scenario, control):

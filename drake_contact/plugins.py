@@ -13,7 +13,7 @@ controllers (``push``, ``hybrid``, ``nn`` and the baselines) register the
 same way, in this project's own ``pyproject.toml``.
 
 The station (:func:`drake_contact.diagram.MakeContactDiagram`) connects the
-controller's input ports **by name** from :data:`CONTROLLER_INPUTS` and takes
+controller's input ports **by name** from :func:`controller_inputs` and takes
 its ``joint_torque_commanded`` output (3, N m); every other vector output is
 logged (the ones of :data:`drake_contact.diagram.CONTROLLER_SIGNALS` and of
 the factory's declared ``signals`` under their own names, others as
@@ -53,6 +53,7 @@ from pydrake.systems.primitives import Demultiplexer
 
 from drake_contact.constants import CONTACT_THRESHOLD_N
 from drake_contact.errors import ScenarioError
+from drake_contact.measured import MEASUREMENTS
 from drake_contact.options import config_from_options
 from drake_contact.plant.arm import DeclareSampledUpdate, is_sample_time
 
@@ -60,16 +61,10 @@ from drake_contact.plant.arm import DeclareSampledUpdate, is_sample_time
 CONTROLLER_GROUP = "drake_contact.controllers"
 IDENTIFIER_GROUP = "drake_contact.identifiers"
 
-#: Input ports a controller may declare, by name: (size, meaning). The
-#: station connects each one the controller has.
-CONTROLLER_INPUTS = {
-    "tip_pose": (3, "estimated tip [x, y, phi] from the encoders (m, rad), world"),
-    "tip_velocity": (3, "35 Hz filtered tip velocity (m/s, rad/s)"),
-    "tip_acceleration": (3, "35 Hz filtered tip acceleration (m/s^2, rad/s^2)"),
-    "joint_positions": (3, "joint angles q1, q2 as read, q3 filtered (rad)"),
-    "joint_velocities": (3, "joint velocities by filtered backward differences (rad/s)"),
-    "force": (1, "normal force through the DSP's 120 Hz Butterworth (N, pushing > 0)"),
-    "force_raw": (1, "normal force as the DSP's ADC reads it, tared (N)"),
+#: Input ports a controller may declare besides the measured signals
+#: (:func:`controller_inputs`): f_d, an identifier's estimate, and the true
+#: state for test harnesses: (size, meaning).
+STATION_INPUTS = {
     "force_desired": (1, "desired normal force f_d from the scenario's force reference (N)"),
     "impedance_estimate": (3, "[M_e, B_e, K_e] of the identifier named by "
                               "controller.impedance_source (kg, N s/m, N/m)"),
@@ -77,20 +72,31 @@ CONTROLLER_INPUTS = {
                        "harnesses only (the built-in push)"),
 }
 
+
+def controller_inputs() -> dict:
+    """Every input port a controller may declare, by name: (size, meaning).
+    The station connects each one the controller has: the measured signals
+    controllers read (:data:`drake_contact.measured.MEASUREMENTS`), then
+    :data:`STATION_INPUTS`."""
+    return {name: (m.size, m.meaning) for name, m in MEASUREMENTS.items()
+            if m.controllers} | STATION_INPUTS
+
+
+def identifier_inputs() -> dict:
+    """Every input port an identifier may declare: every measured signal
+    and ``contact_info``."""
+    return ({name: (m.size, m.meaning) for name, m in MEASUREMENTS.items()} | {
+        "contact_info": (4, "[time of the first contact switch (s) or -1, x, y, phi at the "
+                            "switch]: the controller's or the station's detector's")})
+
+
 #: Output ports every controller must have: (size, meaning).
 CONTROLLER_REQUIRED_OUTPUTS = {
     "joint_torque_commanded": (3, "motor command before saturation (N m)"),
 }
 
 
-#: Input ports an identifier may declare (besides :data:`CONTROLLER_INPUTS`'
-#: measured signals), and the outputs it must / may have.
-IDENTIFIER_EXTRA_INPUTS = {
-    "contact_info": (4, "[time of the first contact switch (s) or -1, x, y, phi at the "
-                        "switch]: the controller's or the station's detector's"),
-    "tip_velocity_raw": (3, "tip velocity by unfiltered differences (m/s, rad/s)"),
-    "tip_acceleration_raw": (3, "tip acceleration by unfiltered differences"),
-}
+#: Outputs an identifier must have.
 IDENTIFIER_REQUIRED_OUTPUTS = {
     "impedance": (3, "the estimate [M_e, B_e, K_e] (kg, N s/m, N/m)"),
 }
@@ -248,7 +254,7 @@ def _build(found, kind, name, options, field):
 
 def MakeController(name: str, options: dict, *, prefix="controller") -> System:
     """Builds the installed controller ``name`` from ``options`` and checks
-    its ports against :data:`CONTROLLER_INPUTS` and
+    its ports against :func:`controller_inputs` and
     :data:`CONTROLLER_REQUIRED_OUTPUTS`. Raises ScenarioError naming the
     plug-in if it is not installed, fails to load or build, or does not fit
     the station."""
@@ -260,21 +266,19 @@ def MakeController(name: str, options: dict, *, prefix="controller") -> System:
 
 def MakeIdentifier(kind: str, options: dict, *, prefix="identifiers[0]") -> System:
     """Builds the installed identifier ``kind`` from ``options``; its inputs
-    must be measured signals (:data:`CONTROLLER_INPUTS` but the ground truth,
-    f_d and estimates) or :data:`IDENTIFIER_EXTRA_INPUTS`, and it must
-    output ``impedance`` (3). Raises ScenarioError naming it otherwise."""
+    must be measured signals or ``contact_info`` (:func:`identifier_inputs`),
+    and it must output ``impedance`` (3). Raises ScenarioError naming it
+    otherwise."""
     system, where = _build(installed_identifiers(), "identifier", kind, options,
                            f"{prefix}.kind")
-    allowed = {k: v for k, v in CONTROLLER_INPUTS.items()
-               if k not in ("plant_state", "force_desired", "impedance_estimate")}
-    _check_ports(system, where, allowed | IDENTIFIER_EXTRA_INPUTS, IDENTIFIER_REQUIRED_OUTPUTS)
+    _check_ports(system, where, identifier_inputs(), IDENTIFIER_REQUIRED_OUTPUTS)
     return system
 
 
 def check_controller_ports(system: System, where: str):
     """Raises ScenarioError unless every input of ``system`` is one the
     station provides, at its size, and its required outputs exist."""
-    _check_ports(system, where, CONTROLLER_INPUTS, CONTROLLER_REQUIRED_OUTPUTS)
+    _check_ports(system, where, controller_inputs(), CONTROLLER_REQUIRED_OUTPUTS)
 
 
 def _check_ports(system: System, where: str, inputs: dict, outputs: dict):

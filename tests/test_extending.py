@@ -180,3 +180,24 @@ def test_a_metric_is_computed_scored_and_ranked(tmp_path):
         unregister_metric(deepest)
     assert "deepest_penetration_m" not in simulate_scenario(
         load_scenario("push_constant", duration=0.6)).metrics
+
+
+def test_a_measured_signal_is_one_entry_of_the_table(monkeypatch):
+    """A new measured signal is a Measurement in MEASUREMENTS (here a second
+    name for the DSP's ADC reading): the station fills it, exports and logs
+    it, and controllers and identifiers may read it."""
+    import numpy as np
+
+    from drake_contact import measured
+    from drake_contact.plugins import controller_inputs, identifier_inputs
+
+    monkeypatch.setitem(measured.MEASUREMENTS, "force_adc", measured.Measurement(
+        1, "the DSP's ADC reading again (N)", "dsp", "force_measured", "force_adc",
+        "a second log of force_measured (N)"))
+    assert controller_inputs()["force_adc"] == (1, "the DSP's ADC reading again (N)")
+    assert "force_adc" in identifier_inputs()
+    scenario = load_scenario("nn_styrofoam", duration=0.6)
+    assert MakeContactDiagram(scenario).signals["force_adc"].meaning == \
+        "a second log of force_measured (N)"
+    log = simulate_scenario(scenario).log
+    np.testing.assert_array_equal(log["force_adc"], log["force_measured"])

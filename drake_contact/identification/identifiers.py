@@ -52,7 +52,7 @@ from pydrake.systems.framework import DiagramBuilder
 
 from drake_contact.blocks import AddSubdiagram
 from drake_contact.errors import ScenarioError
-from drake_contact.measured import MeasuredSignals
+from drake_contact.measured import MEASUREMENTS
 from drake_contact.plant.arm import CONTROL_PERIOD
 from drake_contact.sensing.filters import butterworth_digital, digital_filter_system
 from drake_contact.identification.nn_identifier import NnIdentifier, NnIdentifierConfig
@@ -64,7 +64,6 @@ from drake_contact.plugins import (
 
 SIGNALS = ("filtered", "raw", "matched", "raw_matched")
 CHAIN_MODELS = ("bilinear", "zoh")
-_MEASURED_FIELDS = [field.name for field in dc.fields(MeasuredSignals)]
 
 
 @dc.dataclass
@@ -259,7 +258,7 @@ def AddIdentifiers(builder: DiagramBuilder, scenario, *, name="identifiers"):
     """Adds every one of ``scenario.identifiers`` side by side, as the
     sub-diagram ``name``; returns it.
 
-    Inputs: every :class:`~drake_contact.measured.MeasuredSignals` field by
+    Inputs: every measured signal (:data:`~drake_contact.measured.MEASUREMENTS`) by
     its name (``force``, ``force_raw``, ``tip_pose``, ...) and
     ``contact_info`` (4, the hybrid controller's switch record). Outputs, per
     identifier ``<id>``: ``impedance_<id>`` (3: [M_e, B_e, K_e], kg, N s/m,
@@ -267,7 +266,7 @@ def AddIdentifiers(builder: DiagramBuilder, scenario, *, name="identifiers"):
     seed = scenario.simulation.seed
 
     def build(builder):
-        inputs = {field: [] for field in _MEASURED_FIELDS} | {"contact_info": []}
+        inputs = {name: [] for name in MEASUREMENTS} | {"contact_info": []}
         outputs = {}
         filtered = {}   # (signals, chain) -> {input name: filtered port}, built once each
         adders = {"matched": _add_matched_signals, "raw_matched": _add_raw_matched_signals}
