@@ -265,12 +265,7 @@ class SafetySupervisorLaw(LeafSystem):
         state = int(held[_STATE])
         reason = int(held[_REASON])
         if state != STOPPED:
-            reason = (STOP_TORQUE_NOT_FINITE if not np.all(np.isfinite(tau_cmd)) else
-                      STOP_FORCE_LIMIT if over >= c.force_stop_samples else
-                      STOP_TIP_SPEED if t >= c.speed_check_from_s
-                      and math.hypot(v[0], v[1]) > c.tip_speed_limit_m_s else
-                      STOP_SENSOR_FAULT if sensor_fault
-                      and t - fault_t >= c.sensor_fault_stop_s - TIME_TOLERANCE_S else STOP_NONE)
+            reason = self._stop_reason(tau_cmd, over, t, v, sensor_fault and t - fault_t)
         if reason:
             if state != STOPPED:
                 # Hold the joint angles that put the tip stop_backoff_m back
@@ -292,11 +287,7 @@ class SafetySupervisorLaw(LeafSystem):
             tau = self._pd(out[_Q_HOLD], q, qdot)
         else:
             tau, state = self._push_limited(tau_cmd, q, v, t - reflex_t)
-        rate = self._rate_per_sample
-        if rate is not None and t > CONTROL_PERIOD / 2:
-            step = np.where(rate > 0, np.clip(tau - held[_TAU], -rate, rate), tau - held[_TAU])
-            tau = held[_TAU] + step
-        out[_TAU] = tau
+        out[_TAU] = self._rate_limited(tau, held[_TAU], t)
         out[_STATE] = state
         out[_RAW_PREV] = raw
         out[_FROZEN] = frozen
@@ -307,6 +298,31 @@ class SafetySupervisorLaw(LeafSystem):
         out[_OVER] = over
         out[_REASON] = reason
         output.SetFromVector(out)
+
+    def _stop_reason(self, tau_cmd, over, t, v, sensor_fault_for):
+        """Why the arm stops now (STOP_NONE: it does not): a torque that is not
+        finite, the force over the limit for ``over`` samples, the tip too
+        fast, or a sensor fault for ``sensor_fault_for`` s (False: none)."""
+        c = self._config
+        if not np.all(np.isfinite(tau_cmd)):
+            return STOP_TORQUE_NOT_FINITE
+        if over >= c.force_stop_samples:
+            return STOP_FORCE_LIMIT
+        if t >= c.speed_check_from_s and math.hypot(v[0], v[1]) > c.tip_speed_limit_m_s:
+            return STOP_TIP_SPEED
+        if sensor_fault_for is not False \
+                and sensor_fault_for >= c.sensor_fault_stop_s - TIME_TOLERANCE_S:
+            return STOP_SENSOR_FAULT
+        return STOP_NONE
+
+    def _rate_limited(self, tau, tau_before, t):
+        """``tau`` moved at most the rate limit per sample from the last
+        sample's torque (the first sample is not limited)."""
+        rate = self._rate_per_sample
+        if rate is None or t <= CONTROL_PERIOD / 2:
+            return tau
+        step = np.where(rate > 0, np.clip(tau - tau_before, -rate, rate), tau - tau_before)
+        return tau_before + step
 
     def _push_limited(self, tau_cmd, q, v, since_reflex):
         """The commanded torque with the tip's push along x clamped, and
