@@ -1,5 +1,5 @@
 """identify_*_appendix_e: the identification runs as Appendix E's code ran
-(issue 16). The variants differ from identify_* only where the code does;
+(models/scenarios/identify_*_appendix_e.yaml). The variants differ from identify_* only where the code does;
 the code's output layer for the identifier network, one step by hand; and
 the claim measured for the README ("Online identification")."""
 

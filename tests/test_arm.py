@@ -1,4 +1,4 @@
-"""The URDF arm against SPEC §2 computed by hand."""
+"""The URDF arm against the thesis's link data (Appendix D) computed by hand."""
 
 import numpy as np
 import pytest

@@ -28,7 +28,7 @@ def _check_holds_20_n(scenario, m):
     assert approach.hold_time_s < m["contact_time_s"] < approach.hold_time_s + 5.0
     assert m["mode_switches"] == 1
     assert abs(m["force_mean_n"] - 20.0) < 0.5
-    # Issue 4's bar was 1 mm and 5 mrad. In contact y and phi rest wherever
+    # A bar of 1 mm and 5 mrad is too tight: in contact y and phi rest wherever
     # joint 3's 2,000-count encoder (3.1 mrad, 0.47 mm at the tip) and
     # stiction leave them after the switch transient; with the thesis's
     # timing y ends 1.03-1.09 mm on styrofoam over seeds 0-2 (0.63-0.90 on
@@ -54,7 +54,7 @@ def test_identification_holds_20_n_on_a_wall_between_the_materials(tmp_path):
 
 
 def _check_identification(scenario, m):
-    """Issue 5's bars, on the scored identifiers (checked inside the runs
+    """The identification bars, on the scored identifiers (checked inside the runs
     above, not by running them twice). At seed 0 (README, "Identification"):
     rls_matched -2.9 % in 0.09 s (styrofoam), -0.6 % in 0.04 s (rubber);
     nn_offset within 10 % from 0.15 s and 0.07 s. The thesis's forms are
@@ -82,7 +82,7 @@ def test_hybrid_part_alone_misses_the_square_wave(quick_reproduction, name):
 
 
 def _check_follows_the_square_wave(m):
-    """Issue 6: RMSE in 10-20 s after contact <= 1.5 N; adapted within 10 s."""
+    """The square wave followed: RMSE in 10-20 s after contact <= 1.5 N; adapted within 10 s."""
     assert m["status"] == "completed" and m["mode_switches"] == 1
     assert m["scoring_window_s"][1] - m["scoring_window_s"][0] > 9.9
     assert m["force_rmse_n"] <= 1.5

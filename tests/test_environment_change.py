@@ -1,4 +1,4 @@
-"""Time-varying environments (issue 16): the tracking metrics on hand-made
+"""Time-varying environments: the tracking metrics on hand-made
 logs against hand computations, the wall's logged truth under the
 stiffness ramp and step against their closed forms, and one short closed
 loop across a material change."""

@@ -12,7 +12,7 @@ from pydrake.systems.framework import DiagramBuilder
 from drake_contact import ScenarioError, load_scenario
 from drake_contact.app.fault_study import fault_cases
 from drake_contact.simulation import simulate_scenario
-from drake_contact.diagram import MakeContactDiagram, SeedNoise
+from drake_contact.diagram import MakeContactDiagram
 from drake_contact.faults import FAULT_KINDS, AddFault, FaultClock, FaultConfig
 from drake_contact.plant.compliant_wall import CompliantWall, EnvironmentConfig
 

@@ -1,4 +1,5 @@
-"""Filter design against SPEC §4, and the lifted analog filters."""
+"""Filter design against the thesis's DSP Butterworth filter, and the lifted
+analog filters."""
 
 import numpy as np
 import pytest
@@ -15,7 +16,7 @@ from drake_contact.sensing.filters import (
 ])
 def test_designed_coefficients_equal_the_thesis_and_cut_at_minus_3_db(cutoff, b_spec, a_spec):
     b, a = butterworth_digital(cutoff, 1000.0)
-    # SPEC §4 writes y = b0 u + b1 u1 + b2 u2 + a1 y1 + a2 y2: a1 = -a[1].
+    # The DSP's difference equation is y = b0 u + b1 u1 + b2 u2 + a1 y1 + a2 y2: a1 = -a[1].
     np.testing.assert_allclose(b, b_spec, atol=5e-4)
     np.testing.assert_allclose(-a[1:], a_spec, atol=5e-4)
     _, h = signal.freqz(b, a, worN=[cutoff], fs=1000.0)

@@ -229,8 +229,8 @@ def test_nn_diagram_builds_and_logs_the_compensator():
 
 
 def _former_train(net, weights, inputs, error):
-    """The network's step as the plain array expressions it was first
-    written as (before issue 13's buffers): the reference, bit for bit."""
+    """The network's step as plain array expressions, without the
+    preallocated buffers: the reference, bit for bit."""
     def sigma(s):
         return 2.0 / (1.0 + np.exp(-s)) - 1.0
     W, V = CompensatorNetwork.unpack(weights)

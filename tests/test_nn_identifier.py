@@ -75,9 +75,8 @@ def test_system_step_trains_on_the_force_less_the_switch_force(force_offset):
 
 
 def _former_train(net, weights, x, f):
-    """The network's step and probes as the plain array expressions they
-    were first written as (before issue 13's buffers): the reference, bit
-    for bit."""
+    """The network's step and probes as plain array expressions, without
+    the preallocated buffers: the reference, bit for bit."""
     c = net.c
 
     def forward(weights, x):
@@ -121,7 +120,7 @@ def test_train_and_probes_are_bit_identical_to_the_array_expressions():
         np.testing.assert_array_equal(hidden_new, hidden)
 
 
-# The self-scaling network (issue 16): normalization running, readouts at
+# The self-scaling network (nn_auto): normalization running, readouts at
 # the current operating point.
 
 def _running_config(**kwargs):
@@ -247,7 +246,7 @@ def test_bad_self_scaling_fields_name_the_field_and_the_range(field, value, mess
 @pytest.mark.parametrize("stiffness,damping", [(7000.0, 100.0), (100000.0, 30.0)])
 def test_self_scaling_identifier_meets_the_10_percent_bar_at_1_s_in_closed_loop(
         tmp_path, stiffness, damping):
-    """Issue 16 item 2's bar on two of its grid points (seed 0): nn_auto,
+    """The self-scaling network's bar on two grid points (seed 0): nn_auto,
     with the same settings on both walls, has K_e within 10 % 1 s after
     contact (7-8.3 s); the run stops shortly after."""
     from drake_contact.app.runner import run

@@ -1,5 +1,5 @@
 """``drake-contact reproduce``: the quick reproduction scores every thesis
-result (SPEC §8) and passes; a Ctrl-C leaves logs and a partial report;
+result (the thesis's chapter 6) and passes; a Ctrl-C leaves logs and a partial report;
 scoring marks missing runs instead of failing on them; each claim's text
 lives once; the report embeds every figure and draws the diagram."""
 

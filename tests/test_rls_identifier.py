@@ -354,7 +354,7 @@ def _source_of(diagram, input_port):
 
 @pytest.mark.parametrize("stiffness, damping, seed", [(7000.0, 100.0, 0), (120000.0, 20.0, 3)])
 def test_rls_robust_is_within_5_percent_one_second_after_contact(stiffness, damping, seed):
-    """Issue 16's bar for the best RLS at 1 s, on two walls (the grid is a
+    """The bar for the best RLS at 1 s, on two walls (the grid is a
     sweep): identify_any's rls_robust, probing on, its K_e within 5 %."""
     from drake_contact import load_scenario, simulate_scenario
     from drake_contact.scoring.metrics import compute_metrics

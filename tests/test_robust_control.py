@@ -1,4 +1,4 @@
-"""Issue 15's closed-loop claims on a few grid points, one configuration for
+"""The robust schemes' closed-loop claims on a few grid points, one configuration for
 every environment (the full grid is a sweep: models/sweeps/adaptive_hybrid.yaml
 and robust_nn.yaml, reported in the README)."""
 
@@ -13,9 +13,9 @@ def _environment(stiffness, damping):
 
 
 @pytest.mark.parametrize("stiffness,damping", [(3000.0, 100.0), (150000.0, 10.0)])
-def test_adaptive_hybrid_meets_issue_15s_bar_on_soft_and_stiff_walls(tmp_path, stiffness, damping):
+def test_adaptive_hybrid_meets_its_bar_on_soft_and_stiff_walls(tmp_path, stiffness, damping):
     """20 N held 12.5 s (the hold and the wave's first level), 10 N, 20 N:
-    issue 15's bar, which the sweep found on every run of the grid (README,
+    the bar the sweep found on every run of the grid (README,
     "adaptive_hybrid"): no contact lost, an impact of at most 2 f_d, every
     level within 0.5 N from 0.5 s after each change, |y| < 1 mm and |phi| <
     5 mrad from 1 s after contact; and the RLS's K_e within 5 %. These two

@@ -9,7 +9,7 @@ collected by joint acceleration (M) and by squared joint rates (h); they are
 written with the same grouped terms ``ta``, ``tb``, ``tc`` that the thesis's
 Appendix E code uses for ``M[i][j]`` and ``OMG[i]``.
 
-Conventions (thesis Appendix C, D-H table; SPEC §2):
+Conventions (thesis Appendix C, D-H table; Appendix D's link data):
 - three revolute joints about z in the horizontal plane; gravity is along z,
   so it never enters a joint torque (the thesis carries ``-g`` in the z rows
   of D1-3..D3-5; those rows only feed the x/y moments n_x, n_y, which no motor
@@ -32,7 +32,7 @@ angular velocities of links 1, 2, 3; Appendix D's Omega_1..3, D1-1..D3-1).
 import numpy as np
 
 #: Link data as printed at the end of Appendix D (lines 1404-1409); identical
-#: to SPEC §2 and to drake_contact.plant.arm (not imported: that module pulls in
+#: to drake_contact.plant.arm (not imported: that module pulls in
 #: pydrake, and the oracle must stay independent of it).
 LINK_LENGTHS = (0.2207, 0.1603, 0.1508)          # a_i (m)
 LINK_MASSES = (12.88, 5.95, 0.44)                # m_i (kg)
