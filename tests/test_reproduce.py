@@ -210,11 +210,14 @@ def test_report_embeds_every_figure_and_draws_the_diagram(tmp_path, monkeypatch,
     if have_dot:
         assert (tmp_path / "diagram.svg").read_text().lstrip().startswith("<?xml")
         assert "[diagram.svg](diagram.svg)" in markdown
-        assert page.index("<img src='diagram.svg'") < page.index("<table>")
+        # The results first, then the drawing.
+        assert page.index("<table>") < page.index("<img src='diagram.svg'")
     else:
+        # A link to the DOT text, never the text itself.
         assert not (tmp_path / "diagram.svg").exists()
         assert "apt-get install graphviz" in markdown and "apt-get install graphviz" in page
-        assert page.index("<pre>digraph") < page.index("<table>")
+        assert "<a href='diagram.dot'>" in page and "digraph" not in page
+        assert page.index("<table>") < page.index("diagram.dot")
 
 
 def _small_lr_row(tmp_path, windows, losses=0, first_loss=None):

@@ -153,7 +153,9 @@ def test_heat_map_cells_and_crosses(rows):
     # Log axes by default (both span more than 20), ticks at the grid's values.
     assert ax.get_xscale() == "log" and ax.get_yscale() == "log"
     np.testing.assert_allclose(ax.get_xticks(), STIFFNESS)
-    assert [t.get_text() for t in ax.get_xticklabels()] == ["1e+03", "1e+04", "1e+05", "1e+06"]
+    # In the field's unit, named on the axis: 1-1000 kN/m, not 1e+03-1e+06.
+    assert [t.get_text() for t in ax.get_xticklabels()] == ["1", "10", "100", "1000"]
+    assert ax.get_xlabel() == "environment.stiffness (kN/m)"
     assert [t.get_text() for t in ax.get_yticklabels()] == ["0.01", "0.1", "1"]
     # A red cross on the diverged cell, an orange one on the lost contact.
     red, orange = heat.crosses
@@ -196,7 +198,7 @@ def test_facets_one_panel_per_value():
     np.testing.assert_allclose(panels[0].values, expected_means())
     np.testing.assert_allclose(panels[1].values, expected_means() + 100.0)
     titles = [ax.get_title() for ax in fig.axes if ax.get_title()]
-    assert titles == [f"{Z} = 10", f"{Z} = 50"]
+    assert titles == [f"{Z} = 10 N s/m", f"{Z} = 50 N s/m"]
     # No facet: the other varied field is pooled, one panel.
     (pooled,) = plot_sweep_map(Figure(), rows, {"metric": METRIC, "x": X, "y": Y})
     np.testing.assert_allclose(pooled.values, expected_means() + 50.0)

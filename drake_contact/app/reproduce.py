@@ -19,9 +19,10 @@ bounds, and whether that matches what we expect: a result the faithful model
 does not reproduce is a documented deviation (:attr:`Result.deviation`,
 with its measured cause). ``DIR/report.md`` and ``DIR/report.html`` show the
 rows with the first seed's figures embedded: the rows' figures first, then
-every other figure that seed's runs wrote, by run. The report opens with a
-drawing of the ``nn_styrofoam`` diagram (``DIR/diagram.dot``;
-``DIR/diagram.svg`` when Graphviz's ``dot`` is installed).
+every other figure that seed's runs wrote, by run. After the rows and the
+deviations, the report draws the ``nn_styrofoam`` diagram
+(``DIR/diagram.svg`` when Graphviz's ``dot`` is installed; otherwise a link
+to its DOT text, ``DIR/diagram.dot``).
 
 The command exits 0 when every row is as expected (reproduced, or a
 documented deviation that still deviates) and 1 when one is not: a result
@@ -767,7 +768,7 @@ def write_report(out_dir, rows, *, quick, status, seeds=SEEDS, interrupted=False
     header = ["experiment", "thesis figure", "thesis reports", "measured (ours)",
               "ground truth", "bounds", "result"]
 
-    md = [f"# {title}", "", summary, "", mode, "", rule, "", diagram_md, "",
+    md = [f"# {title}", "", summary, "", mode, "", rule, "",
           "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for r in rows:
         cells = [r.experiment, r.figures, r.thesis, r.measured, r.truth, r.tolerance, r.verdict()]
@@ -776,7 +777,7 @@ def write_report(out_dir, rows, *, quick, status, seeds=SEEDS, interrupted=False
     if deviations:
         md += ["", "## Documented deviations", ""]
         md += [f"- {r.experiment} (Fig {r.figures}): {r.deviation}." for r in deviations]
-    md += ["", "## Runs", ""]
+    md += ["", "## The diagram", "", diagram_md, "", "## Runs", ""]
     for (name, seed), code in status.items():
         folder = run_folder(".", name, seed).as_posix()
         md.append(f"- `{name}` seed {seed}: " + ("not started" if code is None else f"exit {code}")
@@ -803,15 +804,6 @@ def write_report(out_dir, rows, *, quick, status, seeds=SEEDS, interrupted=False
     e = html.escape
     body = [f"<h1>{e(title)}</h1>", f"<p>{e(summary)}</p>", f"<p>{e(mode)}</p>",
             f"<p>{e(rule)}</p>"]
-    if svg:
-        body.append(f"<figure><img src='diagram.svg' alt='the {DIAGRAM_SCENARIO} diagram'>"
-                    f"<figcaption>The {DIAGRAM_SCENARIO} diagram, one level of subsystems "
-                    "(<a href='diagram.dot'>Graphviz DOT</a>)</figcaption></figure>")
-    else:
-        body.append(f"<p>The {DIAGRAM_SCENARIO} diagram as Graphviz DOT text "
-                    "(<a href='diagram.dot'>diagram.dot</a>); <code>apt-get install graphviz"
-                    "</code> renders it as a drawing here.</p>"
-                    f"<pre>{e((out / 'diagram.dot').read_text())}</pre>")
     body += ["<table><tr>" + "".join(f"<th>{e(h)}</th>" for h in header) + "</tr>"]
     for r in rows:
         cls = ("missing" if r.passed is None else "pass" if r.passed and r.expected
@@ -824,6 +816,15 @@ def write_report(out_dir, rows, *, quick, status, seeds=SEEDS, interrupted=False
         body.append("<h2>Documented deviations</h2><ul>" + "".join(
             f"<li>{e(r.experiment)} (Fig {e(r.figures)}): {e(r.deviation)}.</li>"
             for r in deviations) + "</ul>")
+    body.append("<h2>The diagram</h2>")
+    if svg:
+        body.append(f"<figure><img src='diagram.svg' alt='the {DIAGRAM_SCENARIO} diagram'>"
+                    f"<figcaption>The {DIAGRAM_SCENARIO} diagram, one level of subsystems "
+                    "(<a href='diagram.dot'>Graphviz DOT</a>)</figcaption></figure>")
+    else:
+        body.append(f"<p>The {DIAGRAM_SCENARIO} diagram as Graphviz DOT text: "
+                    "<a href='diagram.dot'>diagram.dot</a> (<code>apt-get install graphviz"
+                    "</code> draws it here).</p>")
     if playbacks:
         body.append("<p>Meshcat playbacks: " + ", ".join(
             f"<a href='{e(p)}'>{e(p)}</a>" for p in playbacks) + "</p>")

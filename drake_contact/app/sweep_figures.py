@@ -109,10 +109,41 @@ def _sort_key(value):
     return (1, 0.0, str(value))
 
 
-def _format_value(value) -> str:
-    if isinstance(value, float):
-        return "%.3g" % value
-    return str(value)
+#: Units the varied fields read in, on axes and in tables: field ->
+#: (divisor, unit). Other fields show their values as they are.
+FIELD_UNITS = {
+    "environment.stiffness": (1e3, "kN/m"),
+    "environment.damping": (1.0, "N s/m"),
+    "environment.mass": (1.0, "kg"),
+    "environment.friction_coefficient": (1.0, ""),
+    "simulation.duration": (1.0, "s"),
+    "force_sensor.noise_std_n": (1.0, "N"),
+}
+
+
+def field_label(field: str) -> str:
+    """A varied field's name with its unit, e.g. ``environment.stiffness (kN/m)``."""
+    unit = FIELD_UNITS.get(field, (1.0, ""))[1]
+    return f"{field} ({unit})" if unit else field
+
+
+def _value_with_unit(value, field) -> str:
+    """``field = value unit``, e.g. ``environment.damping = 10 N s/m``."""
+    unit = FIELD_UNITS.get(field, (1.0, ""))[1] if isinstance(value, float) else ""
+    return f"{field} = {_format_value(value, field)}" + (f" {unit}" if unit else "")
+
+
+def _format_value(value, field="") -> str:
+    """A value in its field's unit (:data:`FIELD_UNITS`): 7000 N/m reads 7,
+    with the unit in the axis label; four significant digits, and no
+    exponent from 0.001 to a million."""
+    if not isinstance(value, float):
+        return str(value)
+    value /= FIELD_UNITS.get(field, (1.0, ""))[0]
+    text = "%.4g" % value
+    if "e" in text and 1e-3 <= abs(value) < 1e6:
+        text = "%.0f" % value
+    return text
 
 
 def _is_numeric(values) -> bool:
@@ -283,9 +314,9 @@ def _set_axis(ax, which, field, values, centres, edges, log):
     if log:
         (ax.set_xscale if which == "x" else ax.set_yscale)("log")
     (ax.set_xlim if which == "x" else ax.set_ylim)(edges[0], edges[-1])
-    axis.set_ticks(centres, labels=[_format_value(v) for v in values])
+    axis.set_ticks(centres, labels=[_format_value(v, field) for v in values])
     axis.set_ticks([], minor=True)
-    (ax.set_xlabel if which == "x" else ax.set_ylabel)(field)
+    (ax.set_xlabel if which == "x" else ax.set_ylabel)(field_label(field))
 
 
 def _text_colour(image, value) -> str:
@@ -412,7 +443,7 @@ def plot_heat_map(ax, rows, metric, x, y, *, log_x=None, log_y=None, where=None,
 
 
 def _group_label(fields, key) -> str:
-    return ", ".join(f"{field} = {_format_value(value)}" for field, value in zip(fields, key))
+    return ", ".join(_value_with_unit(value, field) for field, value in zip(fields, key))
 
 
 def plot_metric_line(ax, rows, metric, x, *, group=None, log_x=None, where=None,
@@ -503,9 +534,9 @@ def plot_metric_line(ax, rows, metric, x, *, group=None, log_x=None, where=None,
         ax.set_xscale("log")
     if not numeric or len(x_values) <= 8:
         ax.set_xticks([positions[v] for v in x_values],
-                      labels=[_format_value(v) for v in x_values])
+                      labels=[_format_value(v, x) for v in x_values])
         ax.set_xticks([], minor=True)
-    ax.set_xlabel(x)
+    ax.set_xlabel(field_label(x))
     ax.set_ylabel(metric)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(loc="best", fontsize=7)
@@ -596,7 +627,7 @@ def plot_sweep_map(fig, rows, spec, *, varied=None) -> list:
             if log_y:
                 ax.set_yscale("log")
         if facet:
-            ax.set_title(f"{facet} = {_format_value(value)}", fontsize=10)
+            ax.set_title(_value_with_unit(value, facet), fontsize=10)
     for ax in axes[n:]:
         fig.delaxes(ax)
     title = _spec(spec, "title") or (f"{metric} over {x} × {y}" if y else f"{metric} vs {x}")
@@ -765,9 +796,10 @@ def markdown_map(rows, metric, x, y, *, facet="", title="") -> str:
         where = {facet: value} if facet else None
         stats = aggregate(_select(rows, where), [y, x], metric)
         if facet:
-            out.append(f"{facet} = {_format_value(value)}:")
+            out.append(f"{_value_with_unit(value, facet)}:")
             out.append("")
-        out.append("| " + " | ".join([f"{y} \\ {x}"] + [_format_value(v) for v in x_values])
+        out.append("| " + " | ".join([f"{field_label(y)} \\ {field_label(x)}"]
+                                     + [_format_value(v, x) for v in x_values])
                    + " |")
         out.append("|" + "---|" * (len(x_values) + 1))
         for yv in y_values:
@@ -775,7 +807,7 @@ def markdown_map(rows, metric, x, y, *, facet="", title="") -> str:
             for xv in x_values:
                 cell = stats.get((_field_value(yv), _field_value(xv)))
                 cells.append(_markdown_cell(cell))
-            out.append("| " + " | ".join([_format_value(yv)] + cells) + " |")
+            out.append("| " + " | ".join([_format_value(yv, y)] + cells) + " |")
         out.append("")
     return "\n".join(out)
 
