@@ -127,8 +127,8 @@ def _add_controller(builder, scenario, plant, measured: MeasuredSignals):
         contact = controller.GetOutputPort("contact_info")
     elif controller.HasInputPort("force_desired") or scenario.identifiers:
         detector = builder.AddNamedSystem("contact_detector", ContactDetector())
-        builder.Connect(measured.force, detector.GetInputPort("force"))
-        builder.Connect(measured.tip_pose, detector.GetInputPort("tip_pose"))
+        builder.Connect(measured.force_filtered, detector.GetInputPort("force"))
+        builder.Connect(measured.tip_pose_measured, detector.GetInputPort("tip_pose"))
         contact = detector.GetOutputPort("contact_info")
         ports["mode"] = detector.GetOutputPort("mode")
     if controller.HasInputPort("force_desired"):
@@ -336,8 +336,8 @@ def _add_control(builder, scenario, plant, measured, faults) -> _Control:
     if scenario.identifiers:
         identifiers = AddIdentifiers(builder, scenario)
         for name, port in measured.items():
-            if identifiers.HasInputPort(name):
-                builder.Connect(port, identifiers.GetInputPort(name))
+            if identifiers.HasInputPort(MEASUREMENTS[name].role):
+                builder.Connect(port, identifiers.GetInputPort(MEASUREMENTS[name].role))
         if identifiers.HasInputPort("contact_info"):
             builder.Connect(controller["contact_info"],
                             identifiers.GetInputPort("contact_info"))
@@ -357,8 +357,8 @@ def _add_control(builder, scenario, plant, measured, faults) -> _Control:
         supervisor = builder.AddNamedSystem("safety_supervisor", SafetySupervisor(scenario.safety))
         builder.Connect(torque, supervisor.GetInputPort("joint_torque_commanded"))
         for name, port in measured.items():
-            if supervisor.HasInputPort(name):
-                builder.Connect(port, supervisor.GetInputPort(name))
+            if supervisor.HasInputPort(MEASUREMENTS[name].role):
+                builder.Connect(port, supervisor.GetInputPort(MEASUREMENTS[name].role))
         builder.Connect(supervisor.GetOutputPort("joint_torque"), saturation.get_input_port())
     else:
         builder.Connect(torque, saturation.get_input_port())
@@ -419,8 +419,8 @@ def _export_sensing_and_control(export, scenario, sensing, control, friction):
 def _export_measured(export, sensing):
     measured, dsp = sensing.measured, sensing.dsp
     for name, port in measured.items():
-        if MEASUREMENTS[name].signal:
-            export(MEASUREMENTS[name].signal, port, MEASUREMENTS[name].signal_meaning)
+        if MEASUREMENTS[name].station:
+            export(name, port, MEASUREMENTS[name].meaning)
     if dsp.HasOutputPort("force_measured_antialiased"):
         export("force_measured_antialiased", dsp.GetOutputPort("force_measured_antialiased"),
                "second DSP channel through the 190 Hz RC filter (N)")

@@ -76,16 +76,18 @@ STATION_INPUTS = {
 def controller_inputs() -> dict:
     """Every input port a controller may declare, by name: (size, meaning).
     The station connects each one the controller has: the measured signals
-    controllers read (:data:`drake_contact.measured.MEASUREMENTS`), then
-    :data:`STATION_INPUTS`."""
+    (:data:`drake_contact.measured.MEASUREMENTS`, named as the station logs
+    them), then :data:`STATION_INPUTS`."""
     return {name: (m.size, m.meaning) for name, m in MEASUREMENTS.items()
-            if m.controllers} | STATION_INPUTS
+            if m.station} | STATION_INPUTS
 
 
 def identifier_inputs() -> dict:
-    """Every input port an identifier may declare: every measured signal
-    and ``contact_info``."""
-    return ({name: (m.size, m.meaning) for name, m in MEASUREMENTS.items()} | {
+    """Every input port an identifier may declare: each measured signal by
+    its role (``force``, ``tip_pose``, ``tip_velocity``, ``tip_acceleration``:
+    the signals its ``signals`` option chooses; ``force_raw``,
+    ``joint_positions``, ...), and ``contact_info``."""
+    return ({m.role: (m.size, m.meaning) for m in MEASUREMENTS.values()} | {
         "contact_info": (4, "[time of the first contact switch (s) or -1, x, y, phi at the "
                             "switch]: the controller's or the station's detector's")})
 
@@ -282,9 +284,14 @@ def check_controller_ports(system: System, where: str):
 
 
 def _check_ports(system: System, where: str, inputs: dict, outputs: dict):
+    renamed = {m.role: name for name, m in MEASUREMENTS.items() if m.role != name}
     for i in range(system.num_input_ports()):
         port = system.get_input_port(i)
         name = port.get_name()
+        if name not in inputs and renamed.get(name) in inputs:
+            raise ScenarioError(
+                f"{where}: input port '{name}' is the station signal '{renamed[name]}' (its log "
+                f"key) since 2026-11-27: rename the port '{renamed[name]}'")
         if name not in inputs:
             raise ScenarioError(
                 f"{where}: input port '{name}' is not a station signal: the station provides "

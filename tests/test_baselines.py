@@ -40,8 +40,9 @@ def sample(system, *, force, f_d=20.0, state=None, t=SAMPLE_T):
     context.SetTime(t)
     if state is not None:
         context.SetDiscreteState(np.asarray(state, dtype=float))
-    inputs = {"tip_pose": POSE, "tip_velocity": VELOCITY, "joint_positions": Q,
-              "joint_velocities": QDOT, "force": [force], "force_desired": [f_d]}
+    inputs = {"tip_pose_measured": POSE, "tip_velocity_measured": VELOCITY,
+              "joint_positions_estimated": Q, "joint_velocities_estimated": QDOT,
+              "force_filtered": [force], "force_desired": [f_d]}
     for name, value in inputs.items():
         system.GetInputPort(name).FixValue(context, value)
     tau = system.GetOutputPort("joint_torque_commanded").Eval(context).copy()
@@ -71,8 +72,10 @@ def test_ports_are_named_and_sized(name):
               for i in range(system.num_input_ports())}
     outputs = {system.get_output_port(i).get_name(): system.get_output_port(i).size()
                for i in range(system.num_output_ports())}
-    assert inputs == {"tip_pose": 3, "tip_velocity": 3, "joint_positions": 3,
-                      "joint_velocities": 3, "force": 1, "force_desired": 1}
+    # The measured signals as the station names (and logs) them.
+    assert inputs == {"tip_pose_measured": 3, "tip_velocity_measured": 3,
+                      "joint_positions_estimated": 3, "joint_velocities_estimated": 3,
+                      "force_filtered": 1, "force_desired": 1}
     assert outputs == {"joint_torque_commanded": 3, "mode": 1, "contact_info": 4}
 
 

@@ -39,7 +39,7 @@ class Damping(LeafSystem):
     def __init__(self, config):
         super().__init__()
         self.gain = config.gain
-        self.DeclareVectorInputPort("joint_velocities", 3)
+        self.DeclareVectorInputPort("joint_velocities_estimated", 3)
         self.DeclareVectorInputPort("force_desired", 1)
         self.DeclareVectorOutputPort("joint_torque_commanded", 3, self.torque)
         self.DeclareVectorOutputPort("effort", 1, lambda c, o: o.SetAtIndex(
@@ -185,19 +185,19 @@ def test_a_metric_is_computed_scored_and_ranked(tmp_path):
 def test_a_measured_signal_is_one_entry_of_the_table(monkeypatch):
     """A new measured signal is a Measurement in MEASUREMENTS (here a second
     name for the DSP's ADC reading): the station fills it, exports and logs
-    it, and controllers and identifiers may read it."""
+    it under its name, a controller reads it by that name and an identifier
+    by its role."""
     import numpy as np
 
     from drake_contact import measured
     from drake_contact.plugins import controller_inputs, identifier_inputs
 
     monkeypatch.setitem(measured.MEASUREMENTS, "force_adc", measured.Measurement(
-        1, "the DSP's ADC reading again (N)", "dsp", "force_measured", "force_adc",
-        "a second log of force_measured (N)"))
+        1, "the DSP's ADC reading again (N)", "dsp", "force_measured", "adc_force"))
     assert controller_inputs()["force_adc"] == (1, "the DSP's ADC reading again (N)")
-    assert "force_adc" in identifier_inputs()
+    assert "adc_force" in identifier_inputs()
     scenario = load_scenario("nn_styrofoam", duration=0.6)
     assert MakeContactDiagram(scenario).signals["force_adc"].meaning == \
-        "a second log of force_measured (N)"
+        "the DSP's ADC reading again (N)"
     log = simulate_scenario(scenario).log
     np.testing.assert_array_equal(log["force_adc"], log["force_measured"])

@@ -62,7 +62,7 @@ BROKEN = {
         class Plugin(LeafSystem):
             def __init__(self):
                 super().__init__()
-                self.DeclareVectorInputPort("force", 1)
+                self.DeclareVectorInputPort("force_filtered", 1)
                 self.DeclareVectorOutputPort("torque", 3, lambda c, o: o.SetZero())
         def make(options):
             return Plugin()
@@ -82,6 +82,15 @@ BROKEN = {
                 super().__init__()
                 self.DeclareVectorInputPort("impedance_estimate", 3)
                 self.DeclareVectorInputPort("force_desired", 1)
+                self.DeclareVectorOutputPort("joint_torque_commanded", 3, lambda c, o: o.SetZero())
+        def make(options):
+            return Plugin()
+        """,
+    "former_name": """
+        class Plugin(LeafSystem):
+            def __init__(self):
+                super().__init__()
+                self.DeclareVectorInputPort("force", 1)
                 self.DeclareVectorOutputPort("joint_torque_commanded", 3, lambda c, o: o.SetZero())
         def make(options):
             return Plugin()
@@ -164,7 +173,9 @@ def broken_plugins(tmp_path):
     ("no_torque", "controller 'no_torque' (broken_plugins.no_torque:make) has no output port "
                   "'joint_torque_commanded' (3: motor command before saturation (N m))"),
     ("strange_input", "input port 'wall_stiffness' is not a station signal: the station "
-                      "provides tip_pose, tip_velocity"),
+                      "provides tip_pose_measured, tip_velocity_measured"),
+    ("former_name", "input port 'force' is the station signal 'force_filtered' (its log key) "
+                    "since 2026-11-27: rename the port 'force_filtered'"),
     ("raises", "controller 'raises' (broken_plugins.raises:make) raised while being built: "
                "RuntimeError: no license server"),
     ("not_a_system", "its factory returned a int, not a Drake System"),

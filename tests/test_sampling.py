@@ -40,9 +40,12 @@ class Probe(LeafSystem):
         super().__init__()
         self.q_target = np.asarray(q0) + TARGET_OFFSET
         self.records = []
-        self.inputs = {name: self.DeclareVectorInputPort(name, size) for name, size in (
-            ("joint_positions", 3), ("joint_velocities", 3), ("tip_pose", 3),
-            ("tip_velocity", 3), ("force", 1), ("plant_state", 6))}
+        # Keyed by the signal's role, each port named as the station names it.
+        self.inputs = {role: self.DeclareVectorInputPort(name, size) for role, name, size in (
+            ("joint_positions", "joint_positions_estimated", 3),
+            ("joint_velocities", "joint_velocities_estimated", 3),
+            ("tip_pose", "tip_pose_measured", 3), ("tip_velocity", "tip_velocity_measured", 3),
+            ("force", "force_filtered", 1), ("plant_state", "plant_state", 6))}
         self.DeclareVectorOutputPort("joint_torque_commanded", 3, self._torque)
         self.DeclarePeriodicDiscreteUpdateEvent(1e-3, 0.0, self._record)
 

@@ -81,6 +81,7 @@ from drake_contact.errors import ScenarioError
 from drake_contact.plant.arm import (
     CONTROL_PERIOD, TIME_TOLERANCE_S, DeclareSampledUpdate, is_sample_time)
 from drake_contact.plant.planar_arm import solve3
+from drake_contact.measured import by_role
 from drake_contact.plugins import declare
 
 APPROACH, CONTACT = 0, 1
@@ -480,7 +481,8 @@ class BaselineController(Diagram):
     per sample, ``law``) and a Demultiplexer naming the law's outputs,
     ``joint_torque_commanded`` (3), ``mode`` (1) and ``contact_info`` (4),
     as :class:`~drake_contact.control.hybrid_controller.HybridController`
-    does; inputs as the law's."""
+    does; inputs as the law's, the measured ones under the station's names
+    (``force_filtered``, ``tip_pose_measured``, ...)."""
 
     def __init__(self, law: "_BaselineLaw"):
         super().__init__()
@@ -489,8 +491,10 @@ class BaselineController(Diagram):
         size = law.get_output_port().size()
         split = builder.AddNamedSystem("outputs", Demultiplexer([3, 1, 4, size - _LAW.info.stop]))
         builder.Connect(law.get_output_port(), split.get_input_port())
+        station = by_role()
         for i in range(law.num_input_ports()):
-            builder.ExportInput(law.get_input_port(i), law.get_input_port(i).get_name())
+            role = law.get_input_port(i).get_name()
+            builder.ExportInput(law.get_input_port(i), station.get(role, role))
         for index, name in enumerate(("joint_torque_commanded", "mode", "contact_info")):
             builder.ExportOutput(split.get_output_port(index), name)
         builder.BuildInto(self)

@@ -19,6 +19,7 @@ from pydrake.systems.primitives import Adder, ConstantVectorSource, MatrixGain
 from drake_contact.control.hybrid_controller import HybridController, HybridControllerConfig
 from drake_contact.control.nn_compensator import NnCompensator, NnCompensatorConfig
 from drake_contact.control.push_controller import ConstantForcePushController, PushConfig
+from drake_contact.measured import by_role
 from drake_contact.plant.arm import MakeArmModel
 from drake_contact.options import config_from_options
 from drake_contact.plugins import declare
@@ -39,7 +40,8 @@ class ThesisHybridController(Diagram):
     ``stiffness_source`` names an identifier, else from the constant
     ``stiffness_estimate``.
 
-    Inputs: tip_pose, tip_velocity, joint_positions, joint_velocities, force,
+    Inputs: tip_pose_measured, tip_velocity_measured,
+    joint_positions_estimated, joint_velocities_estimated, force_filtered,
     force_desired (and impedance_estimate). Outputs: joint_torque_commanded,
     mode, contact_info, tip_jacobian (see :class:`HybridController`)."""
 
@@ -54,10 +56,12 @@ class ThesisHybridController(Diagram):
 
 
 def _export_hybrid(builder, hybrid, config: HybridControllerConfig):
-    """Exports the hybrid controller's measured inputs and feeds its k_e."""
-    for name in ("tip_pose", "tip_velocity", "joint_positions", "joint_velocities", "force",
-                 "force_desired"):
-        builder.ExportInput(hybrid.GetInputPort(name), name)
+    """Exports the hybrid controller's measured inputs under the station's
+    names for them, and f_d, and feeds its k_e."""
+    station = by_role()
+    for role in ("tip_pose", "tip_velocity", "joint_positions", "joint_velocities", "force"):
+        builder.ExportInput(hybrid.GetInputPort(role), station[role])
+    builder.ExportInput(hybrid.GetInputPort("force_desired"), "force_desired")
     if config.stiffness_source:
         pick = builder.AddNamedSystem("stiffness_from_identifier",
                                       MatrixGain(np.array([[0.0, 0.0, 1.0]])))
@@ -103,8 +107,9 @@ class ThesisNnController(Diagram):
             "nn_compensator",
             NnCompensator(nn_config, hybrid_config.y_desired, hybrid_config.phi_desired))
         # The compensator reads the same measured pose, force and f_d.
-        for name in ("tip_pose", "force", "force_desired"):
-            builder.ConnectInput(name, compensator.GetInputPort(name))
+        station = by_role() | {"force_desired": "force_desired"}
+        for role in ("tip_pose", "force", "force_desired"):
+            builder.ConnectInput(station[role], compensator.GetInputPort(role))
         for name in ("tip_jacobian", "mode"):
             builder.Connect(hybrid.GetOutputPort(name), compensator.GetInputPort(name))
         tau_h = hybrid.GetOutputPort("joint_torque_commanded")

@@ -259,14 +259,14 @@ def AddIdentifiers(builder: DiagramBuilder, scenario, *, name="identifiers"):
     sub-diagram ``name``; returns it.
 
     Inputs: every measured signal (:data:`~drake_contact.measured.MEASUREMENTS`) by
-    its name (``force``, ``force_raw``, ``tip_pose``, ...) and
+    its role (``force``, ``force_raw``, ``tip_pose``, ...) and
     ``contact_info`` (4, the hybrid controller's switch record). Outputs, per
     identifier ``<id>``: ``impedance_<id>`` (3: [M_e, B_e, K_e], kg, N s/m,
     N/m) and, for the neural network, ``force_estimate_<id>`` (N)."""
     seed = scenario.simulation.seed
 
     def build(builder):
-        inputs = {name: [] for name in MEASUREMENTS} | {"contact_info": []}
+        inputs = {m.role: [] for m in MEASUREMENTS.values()} | {"contact_info": []}
         outputs = {}
         filtered = {}   # (signals, chain) -> {input name: filtered port}, built once each
         adders = {"matched": _add_matched_signals, "raw_matched": _add_raw_matched_signals}

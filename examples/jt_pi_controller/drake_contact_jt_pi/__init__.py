@@ -18,8 +18,9 @@ class JacobianTransposePI(LeafSystem):
     def __init__(self, gains):
         super().__init__()
         self.g = gains
-        for name, size in (("tip_pose", 3), ("tip_velocity", 3), ("joint_positions", 3),
-                           ("force", 1), ("force_desired", 1)):
+        for name, size in (("tip_pose_measured", 3), ("tip_velocity_measured", 3),
+                           ("joint_positions_estimated", 3), ("force_filtered", 1),
+                           ("force_desired", 1)):
             self.DeclareVectorInputPort(name, size)
         self.DeclareDiscreteState(1)  # the integral of e (N s)
         self.DeclareVectorOutputPort("joint_torque_commanded", 3, self.torque)
@@ -28,7 +29,7 @@ class JacobianTransposePI(LeafSystem):
     def integral(self, context):
         """The integral of e including this sample's error."""
         g = self.g
-        f = self.GetInputPort("force").Eval(context)[0]
+        f = self.GetInputPort("force_filtered").Eval(context)[0]
         f_d = self.GetInputPort("force_desired").Eval(context)[0]
         integral = context.get_discrete_state(0).GetAtIndex(0)
         if f > g["contact_n"]:
@@ -41,13 +42,13 @@ class JacobianTransposePI(LeafSystem):
             output.SetFromVector([0.0, 0.0, 0.0])  # at rest while the DSP tares
             return
         g, port = self.g, lambda name: self.GetInputPort(name).Eval(context)
-        (_, y, phi), (xd, yd, phid) = port("tip_pose"), port("tip_velocity")
-        f, f_d = port("force")[0], port("force_desired")[0]
+        (_, y, phi), (xd, yd, phid) = port("tip_pose_measured"), port("tip_velocity_measured")
+        f, f_d = port("force_filtered")[0], port("force_desired")[0]
         integral = self.integral(context)
         wrench = [f_d + g["kp"] * (f_d - f) + g["ki"] * integral - g["damping_x"] * xd,
                   -g["stiffness_y"] * y - g["damping_y"] * yd,
                   -g["stiffness_phi"] * phi - g["damping_phi"] * phid]
-        J = tip_jacobian(port("joint_positions"))
+        J = tip_jacobian(port("joint_positions_estimated"))
         output.SetFromVector([sum(J[i][j] * wrench[i] for i in range(3)) for j in range(3)])
 
     def update(self, context, discrete_state):
