@@ -57,44 +57,21 @@ def test_the_example_runs_in_nn_styrofoams_environment_from_the_cli(tmp_path):
     assert "kp: 0.2" in (out / "scenario.yaml").read_text()
 
 
+def _plugin(inputs, outputs=(("joint_torque_commanded", 3),)):
+    """A plug-in controller's source: a LeafSystem with these vector input
+    ports and these zero outputs, and its factory ``make``."""
+    lines = ["class Plugin(LeafSystem):", "    def __init__(self):", "        super().__init__()"]
+    lines += [f"        self.DeclareVectorInputPort({name!r}, {size})" for name, size in inputs]
+    lines += [f"        self.DeclareVectorOutputPort({name!r}, {size}, lambda c, o: o.SetZero())"
+              for name, size in outputs]
+    return "\n".join(lines + ["def make(options):", "    return Plugin()"]) + "\n"
+
+
 BROKEN = {
-    "no_torque": """
-        class Plugin(LeafSystem):
-            def __init__(self):
-                super().__init__()
-                self.DeclareVectorInputPort("force_filtered", 1)
-                self.DeclareVectorOutputPort("torque", 3, lambda c, o: o.SetZero())
-        def make(options):
-            return Plugin()
-        """,
-    "strange_input": """
-        class Plugin(LeafSystem):
-            def __init__(self):
-                super().__init__()
-                self.DeclareVectorInputPort("wall_stiffness", 1)
-                self.DeclareVectorOutputPort("joint_torque_commanded", 3, lambda c, o: o.SetZero())
-        def make(options):
-            return Plugin()
-        """,
-    "reads_impedance": """
-        class Plugin(LeafSystem):
-            def __init__(self):
-                super().__init__()
-                self.DeclareVectorInputPort("impedance_estimate", 3)
-                self.DeclareVectorInputPort("force_desired", 1)
-                self.DeclareVectorOutputPort("joint_torque_commanded", 3, lambda c, o: o.SetZero())
-        def make(options):
-            return Plugin()
-        """,
-    "former_name": """
-        class Plugin(LeafSystem):
-            def __init__(self):
-                super().__init__()
-                self.DeclareVectorInputPort("force", 1)
-                self.DeclareVectorOutputPort("joint_torque_commanded", 3, lambda c, o: o.SetZero())
-        def make(options):
-            return Plugin()
-        """,
+    "no_torque": _plugin([("force_filtered", 1)], [("torque", 3)]),
+    "strange_input": _plugin([("wall_stiffness", 1)]),
+    "reads_impedance": _plugin([("impedance_estimate", 3), ("force_desired", 1)]),
+    "former_name": _plugin([("force", 1)]),
     "raises": """
         def make(options):
             raise RuntimeError("no license server")
