@@ -1,4 +1,4 @@
-"""Builds the simulation diagram of one scenario: the contact station.
+"""Builds the simulation diagram of one scenario: the contact station::
 
     controller --joint_torque_commanded--> [safety_supervisor] --> torque_saturation
       --> [drive faults] --> motors --> [dac] --> plant.actuation
@@ -8,10 +8,11 @@
     plant.state --> encoders (quantized q) --> estimator --> tip pose/velocity/acceleration
     wall.force_on_tip --> force_sensor (FS6-120A, analog on a 12 kHz grid) --> dsp --> force
     estimator, dsp (MeasuredSignals) --> controller, identifiers
-    [bracketed]: only when the scenario has ``safety.enabled`` or ``faults``
-    (drake_contact.faults: sensor faults sit in the DSP, encoder faults
-    before the estimator, environment faults before the wall), and the dac
-    (the torque held between samples) when the plant steps finer than 1 ms
+
+[bracketed]: only when the scenario has ``safety.enabled`` or ``faults``
+(drake_contact.faults: sensor faults sit in the DSP, encoder faults before
+the estimator, environment faults before the wall), and the dac (the torque
+held between samples) when the plant steps finer than 1 ms.
 
 Timing (plant/arm.py): at each 1 ms sample t_n the plant's step and every
 discrete update are computed from the one Context at t_n, so every sampled

@@ -136,7 +136,8 @@ class Declaration:
 
 
 def declare(**fields):
-    """Decorates a factory with its :class:`Declaration`::
+    """Decorates a factory with its :class:`Declaration`, made from
+    ``fields``::
 
         @declare(check_options=typed_options(MyConfig, "controller.options"))
         def make_controller(options: dict) -> System: ...

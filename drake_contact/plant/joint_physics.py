@@ -237,7 +237,7 @@ def AddJointFriction(builder: DiagramBuilder, config: JointFrictionConfig, *,
 
 
 def AddTorqueSaturation(builder: DiagramBuilder, limits, *, name="torque_saturation"):
-    """Adds |tau_i| <= limits_i (N m); returns the Saturation system."""
+    """Adds ``|tau_i| <= limits_i`` (N m); returns the Saturation system."""
     limits = np.asarray(limits, dtype=float)
     return builder.AddNamedSystem(name, Saturation(-limits, limits))
 

@@ -291,7 +291,7 @@ def level_metrics(log: dict, t_contact: float, scoring) -> dict:
 #: A change of f_d by more than this between two samples is a step (N);
 #: the thesis's sine changes f_d by at most 0.013 N per sample.
 STEP_MIN_N = 1.0
-#: A step has settled once |f - f_d| stays within this share of its size,
+#: A step has settled once ``|f - f_d|`` stays within this share of its size,
 #: or STEP_BAND_MIN_N if larger, to the next step.
 STEP_BAND = 0.1
 STEP_BAND_MIN_N = 1.0
@@ -303,7 +303,7 @@ def step_metrics(log: dict, window) -> dict:
     ``step_overshoot_pct``, the median over steps of the largest excursion
     of f - f_d past the new level in the step's direction, in % of the
     step (0 if none), and ``step_overshoot_max_pct`` the largest;
-    ``step_settling_s``, the median time from the step until |f - f_d|
+    ``step_settling_s``, the median time from the step until ``|f - f_d|``
     stays within max(10 % of the step, 1 N) to the next one, over the steps
     that settle; ``step_unsettled``, the steps that never do; ``step_count``."""
     t, force, desired = log["t"], log["contact_force_true"], log["force_desired"]
@@ -412,7 +412,7 @@ def add_stiffness_ratio(log: dict) -> None:
 
 
 def settling_time(t, ratio, after, tolerance):
-    """Time from the first ``after`` sample from which |ratio - 1| stays below
+    """Time from the first ``after`` sample from which ``|ratio - 1|`` stays below
     ``tolerance`` (s); None if the last sample is outside."""
     within = np.abs(ratio - 1) < tolerance
     if not within[-1]:
@@ -486,7 +486,7 @@ def identification_tracking(log: dict, identifiers, t_contact: float) -> dict:
     """How each identifier follows an environment that changes after the
     switch: ``identification_tracking_<name>``, a dict over the samples from
     ``TRACKING_START_S`` after the switch ``t_contact`` to the end, the
-    relative errors taken against the truth at the same sample:
+    relative errors taken against the truth at the same sample::
 
         stiffness_max_abs_error   max |K_est / K_e - 1|
         stiffness_rms_error       RMS of K_est / K_e - 1
