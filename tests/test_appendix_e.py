@@ -1,7 +1,7 @@
 """identify_*_appendix_e: the identification runs as Appendix E's code ran
 (models/scenarios/identify_*_appendix_e.yaml). The variants differ from identify_* only where the code does;
 the code's output layer for the identifier network, one step by hand; and
-the claim measured for the README ("Online identification")."""
+the claim measured in docs/reproduction.md ("Online identification")."""
 
 import dataclasses as dc
 
@@ -92,7 +92,7 @@ def test_the_code_s_08_n_switch_fires_on_our_sensor_noise_at_rest(tmp_path):
     """With identify_*'s sensor (gauge noise 0.75 N, the thesis's +-2 N),
     the filtered force at rest crosses 0.8 N within the first 0.1 s, with
     the arm 2 mm short of the wall it reaches at about 7 s: hence the
-    variants' quieter sensor (README, "Online identification")."""
+    variants' quieter sensor (docs/reproduction.md, "Online identification")."""
     scenario = load_scenario("identify_styrofoam_appendix_e", ["force_sensor.noise_scale=1.0"],
                              duration=0.6)
     m = run(scenario, tmp_path, figures=False).metrics
@@ -100,7 +100,7 @@ def test_the_code_s_08_n_switch_fires_on_our_sensor_noise_at_rest(tmp_path):
 
 
 def test_rls_agrees_with_f_over_x_at_either_switch_but_only_08_n_is_near_truth(tmp_path):
-    """The measurement behind the README ("The code's 0.8 N switch"), seed 0,
+    """The measurement behind docs/reproduction.md ("The code's 0.8 N switch"), seed 0,
     on styrofoam with the variant's quieter sensor: the thesis's RLS and
     f / xe agree (within 1 %) whether the switch is at 0.8 N or 5 N; at 5 N
     both read about f_s / (f - f_s) = 33 % high, at 0.8 N under 5 %."""

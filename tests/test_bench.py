@@ -17,7 +17,7 @@ from drake_contact.app.bench import (
 from drake_contact.diagram import leaf_systems
 
 #: One worker runs this module and its fixture is session-scoped, so the fixture
-#: runs once (-n auto; docs/testing.md, "Shared runs").
+#: runs once (-n auto; docs/developer/testing.md, "Shared runs").
 pytestmark = pytest.mark.xdist_group("test_bench")
 
 #: Long enough for the contact switch to be near, short enough for CI.

@@ -101,7 +101,7 @@ def test_quick_suite_ranks_the_example_plugin_beside_the_thesis_controller(tmp_p
     # on the true wall; the matched RLS (ours) settles within 5 % on both
     # walls of the square wave. A held force excites little beyond the
     # impact: under nn_robust's second version, which settles it faster,
-    # the 60 kN/m wall of `hold` ends 8.3 % off (README, "Benchmark").
+    # the 60 kN/m wall of `hold` ends 8.3 % off (docs/studies/benchmark.md).
     with (out / "identifier_leaderboard.csv").open() as f:
         ids = {(e["identifier"], e["task"]): e for e in csv.DictReader(f)}
     assert ids[("rls_matched", "square")]["runs_settled_5pct"] == "2"

@@ -33,7 +33,7 @@ def _check_holds_20_n(scenario, m):
     # stiction leave them after the switch transient; with the thesis's
     # timing y ends 1.03-1.09 mm on styrofoam over seeds 0-2 (0.63-0.90 on
     # rubber, 1.01 at 30 kN/m, seed 0), so this guards what the model does
-    # (README, "y and phi errors"), not the bar.
+    # (docs/modelling.md, "y and phi errors"), not the bar.
     assert m["y_max_abs_error_m"] < 1.2e-3
     assert m["phi_max_abs_error_rad"] < 5e-3
     assert m["impact_peak_force_n"] <= 2 * 20.0
@@ -55,7 +55,7 @@ def test_identification_holds_20_n_on_a_wall_between_the_materials(tmp_path):
 
 def _check_identification(scenario, m):
     """The identification bars, on the scored identifiers (checked inside the runs
-    above, not by running them twice). At seed 0 (README, "Identification"):
+    above, not by running them twice). At seed 0 (docs/reproduction.md, "Online identification"):
     rls_matched -2.9 % in 0.09 s (styrofoam), -0.6 % in 0.04 s (rubber);
     nn_offset within 10 % from 0.15 s and 0.07 s. The thesis's forms are
     biased by the 5 N switch point, and f / xe alike."""

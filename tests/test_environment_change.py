@@ -17,7 +17,7 @@ from drake_contact.identification.identifiers import IdentifierConfig
 from drake_contact.plant.compliant_wall import CompliantWall, EnvironmentConfig
 
 #: One worker runs this module and its fixture is session-scoped, so the fixture
-#: runs once (-n auto; docs/testing.md, "Shared runs").
+#: runs once (-n auto; docs/developer/testing.md, "Shared runs").
 pytestmark = pytest.mark.xdist_group("test_environment_change")
 
 DT = 1e-3  # the logs' sample period (s)
@@ -202,7 +202,7 @@ def test_the_controller_keeps_contact_and_the_wall_doubles(step_run):
 def test_rls_robust_resets_on_the_jump_and_follows_the_doubled_wall(step_run):
     """The change detector resets rls_robust's covariance just after the
     jump: within 5 % of the new K_e within 1 s of it and to the run's end
-    (the random walk alone ends 11-14 % off, README)."""
+    (the random walk alone ends 11-14 % off, docs/studies/identification.md)."""
     scenario, result = step_run
     entry = result.metrics["identification_tracking_rls_robust"]
     assert entry["stiffness_settling_after_step_s"] is not None

@@ -1,5 +1,5 @@
 """A controller, an identifier and a metric added the documented way
-(README, "Adding a controller", "Adding an identifier", "Adding a
+(docs/extending.md, "Adding a controller", "Adding an identifier", "Adding a
 metric"): a factory with its declaration, in a package of its own
 registered by one entry-point line each, or a metric function with its
 Score; then the scenario validates it when it loads, the station wires and

@@ -14,7 +14,7 @@ from drake_contact.identification.identifiers import IdentifierConfig
 from drake_contact.scenario import ScoringConfig
 
 #: One worker runs this module and its fixture is session-scoped, so the fixture
-#: runs once (-n auto; docs/testing.md, "Shared runs").
+#: runs once (-n auto; docs/developer/testing.md, "Shared runs").
 pytestmark = pytest.mark.xdist_group("test_metrics")
 
 DT = 1e-3  # the logs' sample period (s)

@@ -17,7 +17,7 @@ from drake_contact.app.plotting import (
 from drake_contact.scenario import Scenario
 
 #: One worker runs this module and its fixture is session-scoped, so the fixture
-#: runs once (-n auto; docs/testing.md, "Shared runs").
+#: runs once (-n auto; docs/developer/testing.md, "Shared runs").
 pytestmark = pytest.mark.xdist_group("test_plotting")
 
 N = 50

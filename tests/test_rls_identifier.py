@@ -51,7 +51,7 @@ def test_force_offset_option_removes_the_switch_point_bias():
 def test_forgetting_factor_tracks_a_step_in_stiffness():
     """K_e steps from 7000 to 9000 N/m at 2 s; with lambda = 0.99 (a memory
     of about 0.1 s) the estimate is back within 5 % after 0.19 s (0.54 s at
-    lambda = 0.995, 0.83 s at 0.998), as stated in the README."""
+    lambda = 0.995, 0.83 s at 0.998), as stated in docs/studies/identification.md."""
     t, xe, xd, xdd = excitation(4000)
     K = np.where(t < 2.0, 7000.0, 9000.0)
     f = TRUE[0] * xdd + TRUE[1] * xd + K * xe

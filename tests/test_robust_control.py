@@ -1,6 +1,6 @@
 """The robust schemes' closed-loop claims on a few grid points, one configuration for
 every environment (the full grid is a sweep: models/sweeps/adaptive_hybrid.yaml
-and robust_nn.yaml, reported in the README)."""
+and robust_nn.yaml, reported in docs/studies/robust-control.md)."""
 
 import pytest
 
@@ -15,7 +15,7 @@ def _environment(stiffness, damping):
 @pytest.mark.parametrize("stiffness,damping", [(3000.0, 100.0), (150000.0, 10.0)])
 def test_adaptive_hybrid_meets_its_bar_on_soft_and_stiff_walls(tmp_path, stiffness, damping):
     """20 N held 12.5 s (the hold and the wave's first level), 10 N, 20 N:
-    the bar the sweep found on every run of the grid (README,
+    the bar the sweep found on every run of the grid (docs/studies/robust-control.md,
     "adaptive_hybrid"): no contact lost, an impact of at most 2 f_d, every
     level within 0.5 N from 0.5 s after each change, |y| < 1 mm and |phi| <
     5 mrad from 1 s after contact; and the RLS's K_e within 5 %. These two
@@ -79,7 +79,7 @@ def test_robust_neural_controller_keeps_contact_and_beats_its_hybrid_part(
         tmp_path, stiffness, damping):
     """nn_robust, 10-20 s after contact: RMSE <= 1.5 N and at most half
     its hybrid part's alone; no contact lost (the thesis's form loses it at
-    the last two within 30 s of contact: README, "Robust force control").
+    the last two within 30 s of contact: docs/studies/robust-control.md).
     3 kN/m with B_e 10 is the grid's hardest point: 450 N s/m of velocity
     damping and the plain error missed it (1.91 N, 0.59 of the hybrid part's)."""
     scenario = load_scenario("nn_robust", _environment(stiffness, damping), duration=30.0)

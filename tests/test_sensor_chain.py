@@ -18,7 +18,7 @@ from drake_contact.app.runner import run
 from drake_contact.scenario import load_scenario
 
 #: One worker runs this module and its fixture is session-scoped, so the fixture
-#: runs once (-n auto; docs/testing.md, "Shared runs").
+#: runs once (-n auto; docs/developer/testing.md, "Shared runs").
 pytestmark = pytest.mark.xdist_group("test_sensor_chain")
 
 

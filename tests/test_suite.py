@@ -1,5 +1,5 @@
 """The suite's own machinery: tests marked with one xdist group run on one
-worker, which the shared runs rely on (docs/testing.md, "Shared runs")."""
+worker, which the shared runs rely on (docs/developer/testing.md, "Shared runs")."""
 
 import os
 

@@ -17,7 +17,7 @@ from drake_contact.app.sweep import Task, load_sweep, run_sweep, sweeps_dir
 from drake_contact.app.sweep_figures import plot_heat_map
 
 #: One worker runs this module and its fixture is session-scoped, so the fixture
-#: runs once (-n auto; docs/testing.md, "Shared runs").
+#: runs once (-n auto; docs/developer/testing.md, "Shared runs").
 pytestmark = pytest.mark.xdist_group("test_sweep")
 
 #: push_constant rests through the tare and pushes from 2.1 s; 1e9 N/m makes

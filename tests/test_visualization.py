@@ -21,7 +21,7 @@ from drake_contact.scenario import load_scenario
 from drake_contact.visualization import ContactVisualizer, ContactVisualizerParams, new_meshcat
 
 #: One worker runs this module and its fixture is session-scoped, so the fixture
-#: runs once (-n auto; docs/testing.md, "Shared runs").
+#: runs once (-n auto; docs/developer/testing.md, "Shared runs").
 pytestmark = pytest.mark.xdist_group("test_visualization")
 
 PARAMS = ContactVisualizerParams()

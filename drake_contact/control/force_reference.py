@@ -22,7 +22,7 @@ of amplitude A / N, so that |probe| <= A whatever the frequencies:
 with tau the time since the first contact. Its steady force rises and falls
 with the wall's speed (B_e) and acceleration (M_e) as well as its
 displacement (K_e), so that the identifiers see more than the ~100 ms
-switch transient; see the README for what it buys and costs.
+switch transient; see docs/studies/identification.md for what it buys and costs.
 """
 
 import dataclasses as dc

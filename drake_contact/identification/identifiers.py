@@ -41,7 +41,7 @@ Signals an identifier reads (``signals``):
   T. Soderstrom and P. Stoica, System Identification, 1989, chapter 10);
   white noise is not. Measured: the bias of ``matched`` on identify_any
   (median -3.9 % at the end) is the force noise (the same fit on the
-  noise-free force: -0.6 %); see the README.
+  noise-free force: -0.6 %); see docs/reproduction.md.
 """
 
 import dataclasses as dc

@@ -64,7 +64,7 @@ learned there either (replaying stored transient samples offline did not
 rescue it: -27 to -97 %). The secant at the current displacement needs only
 the level the network holds at rest, f_hat(xe) = f - f_s, so it is K_e up to
 the anchor's error: the force at the switch less the static force there,
-over f - f_s (the identifier's ``signals`` decide f_s; README, "nn_auto").
+over f - f_s (the identifier's ``signals`` decide f_s; docs/reproduction.md, "nn_auto").
 
 With ``readout_time_constant_s`` tau, ``operating_point`` reports each
 coefficient as the exponentially weighted least-squares fit of its

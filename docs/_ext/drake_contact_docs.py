@@ -1,0 +1,302 @@
+"""Sphinx directives that write the reference pages from the code, so they
+cannot drift from it, and that show the long studies' results when they
+have been made.
+
+- ``scenario-fields SECTION``: every field of a scenario section (or, with
+  no argument, the top-level fields), its type, its default and the comment
+  that documents it in the dataclass. At the end of the build, a section of
+  :class:`drake_contact.Scenario` that no page lists is a warning.
+- ``station-signals SCENARIO``: the station's exported signals for a bundled
+  scenario, built here: size, meaning, log keys.
+- ``measured-signals``: :data:`drake_contact.measured.MEASUREMENTS`.
+- ``scores``: the metrics registered with
+  :func:`drake_contact.scoring.metrics.register_metric`.
+- ``generated STUDY``: a part of a study's Markdown output in
+  ``docs/_generated/STUDY/`` (written by ``python docs/build.py --figures``);
+  when it is not there, a note with the command that makes it.
+"""
+
+import ast
+import dataclasses
+import fnmatch
+import importlib
+import inspect
+import os
+import pkgutil
+import re
+import textwrap
+import typing
+from pathlib import Path
+
+from docutils import nodes
+from docutils.parsers.rst import directives
+from docutils.statemachine import StringList
+from sphinx.util.docutils import SphinxDirective
+
+#: Where ``docs/build.py --figures`` writes the studies (the tests point it
+#: elsewhere with DRAKE_CONTACT_DOCS_GENERATED).
+GENERATED = Path(os.environ.get("DRAKE_CONTACT_DOCS_GENERATED")
+                 or Path(__file__).resolve().parents[1] / "_generated")
+_SECTIONS_LISTED = "drake_contact_scenario_sections"
+
+
+def _field_comments(cls) -> dict:
+    """The comment lines right above each field of a dataclass; a field with
+    none shares the comment of the field before it (a group of fields under
+    one comment)."""
+    lines, _ = inspect.getsourcelines(cls)
+    tree = ast.parse(textwrap.dedent("".join(lines)))
+    comments, previous = {}, ""
+    for statement in tree.body[0].body:
+        if not (isinstance(statement, ast.AnnAssign) and isinstance(statement.target, ast.Name)):
+            continue
+        block, row = [], statement.lineno - 2
+        while row >= 0 and lines[row].strip().startswith("#"):
+            block.insert(0, lines[row].strip().lstrip("#").strip())
+            row -= 1
+        text = " ".join(block) if block else previous
+        comments[statement.target.id] = previous = text
+    return comments
+
+
+def _type_name(annotation) -> str:
+    if isinstance(annotation, type):
+        return annotation.__name__
+    return str(annotation).replace("typing.", "")
+
+
+def _default(field):
+    if field.default is not dataclasses.MISSING:
+        return field.default
+    if field.default_factory is not dataclasses.MISSING:
+        return field.default_factory()
+    return None
+
+
+def _cell(text: str) -> str:
+    return str(text).replace("|", "\\|").replace("\n", " ")
+
+
+def _code(value) -> str:
+    text = repr(value) if isinstance(value, str) else f"{value}"
+    if len(text) > 60:
+        text = text[:57] + "..."
+    return f"`{_cell(text)}`" if text else ""
+
+
+def scenario_rows(cls, prefix: str):
+    """(dotted path, type, default, comment) for every leaf field under
+    ``cls``; a list of dataclasses is described by its element's fields
+    under ``prefix[i]``."""
+    hints = typing.get_type_hints(cls)
+    comments = _field_comments(cls)
+    for field in dataclasses.fields(cls):
+        path = f"{prefix}.{field.name}" if prefix else field.name
+        hint = hints[field.name]
+        element = typing.get_args(hint)[0] if typing.get_origin(hint) is list else None
+        if dataclasses.is_dataclass(hint):
+            yield path, hint.__name__, "(section)", comments[field.name] or hint.__doc__
+            yield from scenario_rows(hint, path)
+        elif element is not None and dataclasses.is_dataclass(element):
+            yield path, f"list of {element.__name__}", "`[]`", comments[field.name]
+            yield from scenario_rows(element, f"{path}[i]")
+        else:
+            yield path, _type_name(hint), _code(_default(field)), comments[field.name]
+
+
+class _MarkdownDirective(SphinxDirective):
+    """A directive whose content is Markdown it writes."""
+
+    def markdown(self) -> str:
+        raise NotImplementedError
+
+    def run(self):
+        container = nodes.container()
+        self.state.nested_parse(StringList(self.markdown().splitlines()), self.content_offset,
+                                container)
+        return container.children
+
+
+class ScenarioFields(_MarkdownDirective):
+    optional_arguments = 1
+
+    def markdown(self):
+        from drake_contact.scenario import Scenario
+
+        section = self.arguments[0] if self.arguments else ""
+        listed = getattr(self.env, _SECTIONS_LISTED, set())
+        if section:
+            field = {f.name: f for f in dataclasses.fields(Scenario)}.get(section)
+            if field is None:
+                raise self.error(f"Scenario has no section {section!r}")
+            listed.add(section)
+            setattr(self.env, _SECTIONS_LISTED, listed)
+            hint = typing.get_type_hints(Scenario)[section]
+            element = typing.get_args(hint)[0] if typing.get_origin(hint) is list else hint
+            prefix = f"{section}[i]" if element is not hint else section
+            rows = list(scenario_rows(element, prefix))
+            intro = f"{_cell(element.__doc__ or '').strip()}\n\n"
+        else:
+            listed.add("")
+            setattr(self.env, _SECTIONS_LISTED, listed)
+            rows = [row for row in scenario_rows(Scenario, "") if "." not in row[0]
+                    and "[" not in row[0] and row[2] != "(section)"
+                    and not row[1].startswith("list of")]
+            intro = ""
+        table = ["| field | type | default | meaning |", "|---|---|---|---|"]
+        table += [f"| `{path}` | {_cell(kind)} | {default} | {_cell(doc)} |"
+                  for path, kind, default, doc in rows if default != "(section)"]
+        return intro + "\n".join(table)
+
+
+class StationSignals(_MarkdownDirective):
+    required_arguments = 1
+
+    def markdown(self):
+        import drake_contact as dc
+
+        station = dc.MakeContactDiagram(dc.load_scenario(self.arguments[0]))
+        table = ["| signal | size | meaning | logged as |", "|---|---|---|---|"]
+        for name, signal in station.signals.items():
+            keys = ", ".join(f"`{key}`" for key in signal.log_as) or "not logged"
+            table.append(f"| `{name}` | {signal.size or '-'} | {_cell(signal.meaning)} | {keys} |")
+        return "\n".join(table)
+
+
+class MeasuredSignalsTable(_MarkdownDirective):
+    def markdown(self):
+        from drake_contact.measured import MEASUREMENTS
+
+        table = ["| signal | role | size | meaning | station output |", "|---|---|---|---|---|"]
+        for name, m in MEASUREMENTS.items():
+            table.append(f"| `{name}` | `{m.role}` | {m.size} | {_cell(m.meaning)} | "
+                         f"{'yes' if m.station else 'no'} |")
+        return "\n".join(table)
+
+
+class ScoresTable(_MarkdownDirective):
+    def markdown(self):
+        from drake_contact.scoring.metrics import SCORES
+
+        table = ["| benchmark column | metrics.json key | scale | leaderboard column |",
+                 "|---|---|---|---|"]
+        for score in SCORES:
+            shown = f"{_cell(score.header)} ({' / '.join(score.show)})" if score.show else "CSV only"
+            table.append(f"| `{score.column}` | `{score.key}` | {score.scale:g} | {shown} |")
+        return "\n".join(table)
+
+
+def _study_markdown(text: str, folder: str, drop: set, only: set) -> str:
+    """A study's Markdown as part of a page: its title and the dropped
+    sections removed, headings as bold lines (the page keeps its own
+    structure), images pointed at the generated folder, links to the run
+    folders' files as plain text."""
+    out, skipping = [], bool(only)
+    for line in text.splitlines():
+        heading = re.match(r"^(#+)\s+(.*)$", line)
+        if heading:
+            level, title = len(heading.group(1)), heading.group(2)
+            if level <= 2:
+                skipping = title in drop or bool(only) and title not in only
+                if title in only:
+                    continue
+            if skipping or level == 1 and not out:
+                continue
+            out.append(f"**{title}**")
+            continue
+        if skipping:
+            continue
+        line = re.sub(r"!\[([^]]*)\]\((?!https?:)([^)]+)\)",
+                      lambda m: f"![{m.group(1)}]({folder}/{m.group(2)})", line)
+        line = re.sub(r"(?<!!)\[([^]]+)\]\((?!https?:)[^)]+\)", r"`\1`", line)
+        out.append(line)
+    return "\n".join(out)
+
+
+class Generated(_MarkdownDirective):
+    """``generated STUDY``: options ``file`` (Markdown in the study's folder,
+    default report.md), ``drop`` (comma-separated sections to leave out) or
+    ``only`` (the sections to keep, without their headings),
+    ``images`` (a glob of figures to show after it), ``command`` (what makes
+    it, shown when it is missing)."""
+
+    required_arguments = 1
+    option_spec = {"file": directives.unchanged, "drop": directives.unchanged,
+                   "only": directives.unchanged,
+                   "images": directives.unchanged, "command": directives.unchanged}
+
+    def markdown(self):
+        study = self.arguments[0]
+        folder = GENERATED / study
+        source = folder / self.options.get("file", "report.md")
+        command = self.options.get("command", f"python docs/build.py --figures --study {study}")
+        if not source.exists():
+            return (":::{note}\nThis part shows a measured study that is not in this build. "
+                    f"Make it with\n\n```bash\n{command}\n```\n\nand build again: it writes "
+                    f"`docs/_generated/{study}/`, which the pages pick up.\n:::")
+        self.env.note_dependency(str(source))
+        drop, only = ({name.strip() for name in self.options.get(key, "").split(",")
+                       if name.strip()} for key in ("drop", "only"))
+        # Images are named relative to this page, wherever the folder is.
+        here = Path(self.env.doc2path(self.env.docname)).parent
+        link = Path(os.path.relpath(folder, here)).as_posix()
+        parts = [_study_markdown(source.read_text(), link, drop, only)]
+        pattern = self.options.get("images")
+        if pattern:
+            for image in sorted(folder.rglob("*.png")):
+                relative = image.relative_to(folder).as_posix()
+                if fnmatch.fnmatch(relative, pattern):
+                    parts.append(f"![{image.stem}]({link}/{relative})")
+        return "\n\n".join(parts)
+
+
+def _reexported_data_doc(app, what, name, obj, options, lines):
+    """A constant that ``drake_contact`` re-exports (``FAULT_KINDS``) is
+    documented by the ``#:`` comment where it is defined, not by its type's
+    docstring."""
+    import drake_contact
+    from sphinx.pycode import ModuleAnalyzer
+
+    short = name.rpartition(".")[2]
+    module = drake_contact._MODULE_OF.get(short)
+    if what != "data" or not name.startswith("drake_contact.") or module is None:
+        return
+    candidates = [module]
+    package = importlib.import_module(module)
+    if hasattr(package, "__path__"):  # defined in one of the package's modules
+        candidates += [f"{module}.{info.name}" for info in pkgutil.iter_modules(package.__path__)]
+    for candidate in candidates:
+        comment = ModuleAnalyzer.for_module(candidate).find_attr_docs().get(("", short))
+        if comment:
+            lines[:] = list(comment)
+            return
+
+
+def _check_sections(app, env):
+    from drake_contact.scenario import Scenario
+
+    listed = getattr(env, _SECTIONS_LISTED, set())
+    for field in dataclasses.fields(Scenario):
+        hint = typing.get_type_hints(Scenario)[field.name]
+        element = typing.get_args(hint)[0] if typing.get_origin(hint) is list else hint
+        if dataclasses.is_dataclass(element) and field.name not in listed:
+            from sphinx.util import logging
+            logging.getLogger(__name__).warning(
+                f"the scenario section {field.name!r} is on no page (scenario-fields)")
+
+
+def _merge_sections(app, env, docnames, other):
+    setattr(env, _SECTIONS_LISTED,
+            getattr(env, _SECTIONS_LISTED, set()) | getattr(other, _SECTIONS_LISTED, set()))
+
+
+def setup(app):
+    app.add_directive("scenario-fields", ScenarioFields)
+    app.add_directive("station-signals", StationSignals)
+    app.add_directive("measured-signals", MeasuredSignalsTable)
+    app.add_directive("scores", ScoresTable)
+    app.add_directive("generated", Generated)
+    app.connect("autodoc-process-docstring", _reexported_data_doc)
+    app.connect("env-check-consistency", _check_sections)
+    app.connect("env-merge-info", _merge_sections)
+    return {"parallel_read_safe": True, "parallel_write_safe": True, "version": "1"}

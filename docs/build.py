@@ -1,0 +1,90 @@
+"""Build the documentation site: ``python docs/build.py``.
+
+The site alone takes about half a minute (the tutorial notebook runs in the
+build); the test suite builds it the same way, with warnings as errors.
+``--figures`` first runs the long studies whose tables and figures the pages
+show, into ``docs/_generated/<study>/`` (about 25 minutes on 2 cores; a
+study already there is resumed, so rerunning is quick). ``--study NAME``
+(repeatable) chooses the studies, including the longer ones not in the
+default set. Run it with the interpreter that has drake_contact and the
+``docs`` extra installed (``.venv/bin/python docs/build.py``).
+"""
+
+import argparse
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+DOCS = Path(__file__).resolve().parent
+GENERATED = DOCS / "_generated"
+
+#: Study name -> (its drake-contact arguments (--out added), about how long
+#: it takes on 2 cores, made by --figures without --study).
+STUDIES = {
+    "reproduce": (["reproduce"], "12 min", True),
+    "stability_hybrid": (["sweep", "stability_hybrid", "--workers", "2"], "4 min", True),
+    "identification_accuracy": (["sweep", "identification_accuracy", "--workers", "2"],
+                                "3 min", True),
+    "benchmark_quick": (["benchmark", "--suite", "quick", "--identifiers", "all",
+                         "--workers", "2"], "4 min", True),
+    "faults_quick": (["faults", "--suite", "quick", "--workers", "2"], "2 min", True),
+    "benchmark": (["benchmark", "--identifiers", "all", "--workers", "2"], "27 min", False),
+    "stability_nn": (["sweep", "stability_nn", "--workers", "2"], "39 min", False),
+    "faults": (["faults", "--workers", "2"], "25 min", False),
+}
+
+
+def run_study(name: str) -> int:
+    arguments, _, _ = STUDIES[name]
+    command = [sys.executable, "-m", "drake_contact", *arguments, "--out",
+               str(GENERATED / name)]
+    print("+", " ".join(command[1:]), flush=True)
+    start = time.perf_counter()
+    status = subprocess.run(command, env=dict(os.environ, MPLBACKEND="Agg")).returncode
+    print(f"  {name}: exit {status}, {time.perf_counter() - start:.0f} s", flush=True)
+    return status
+
+
+def build(out: Path, *, warnings_as_errors: bool = True) -> int:
+    from sphinx.cmd.build import build_main
+
+    # The tutorial runs in this interpreter's "python3" kernel (ipykernel's,
+    # installed with it): its folder goes first, so a python3 kernel the user
+    # installed for another interpreter is not picked up.
+    own = str(Path(sys.prefix) / "share" / "jupyter")
+    os.environ["JUPYTER_PATH"] = os.pathsep.join(
+        [own] + [p for p in os.environ.get("JUPYTER_PATH", "").split(os.pathsep) if p])
+
+    arguments = ["-b", "html", "-q", str(DOCS), str(out)]
+    if warnings_as_errors:
+        arguments[:0] = ["-W", "--keep-going"]
+    return build_main(arguments)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--out", type=Path, default=DOCS / "_build" / "html",
+                        help="where the HTML goes (default docs/_build/html)")
+    parser.add_argument("--figures", action="store_true",
+                        help="first run the studies the pages show (docs/_generated/)")
+    parser.add_argument("--study", action="append", choices=sorted(STUDIES),
+                        help="with --figures: this study (repeatable); default: "
+                        + ", ".join(name for name, (_, _, default) in STUDIES.items() if default))
+    args = parser.parse_args(argv)
+    start = time.perf_counter()
+    if args.figures:
+        studies = args.study or [name for name, (_, _, default) in STUDIES.items() if default]
+        for name in studies:
+            # A study's own exit status says whether its results are as
+            # expected (reproduce exits 1 on a result that changed); the
+            # pages show them either way.
+            run_study(name)
+    status = build(args.out)
+    print(f"site: {args.out / 'index.html'} ({time.perf_counter() - start:.0f} s)")
+    return status
+
+
+if __name__ == "__main__":
+    sys.exit(main())
