@@ -13,6 +13,7 @@ from drake_contact.app.campaign import (
 pytestmark = pytest.mark.xdist_group("test_campaign")
 
 
+# [docs: campaign]
 class Stiffness(Campaign):
     """push_constant (2.4 s: it touches at 2.1 s) on walls of three
     stiffnesses, and one point whose override names no field."""
@@ -42,6 +43,7 @@ class Stiffness(Campaign):
 
     def report(self, out, result):
         (out / "report.md").write_text(f"{result.tables['summary'][0]['completed']} completed\n")
+# [docs: end]
 
 
 def _read(path):

@@ -14,6 +14,7 @@ from drake_contact import MakeContactDiagram, ScenarioError, load_scenario, simu
 from drake_contact.plugins import CONTROLLER_GROUP, IDENTIFIER_GROUP
 
 TOY = '''
+# [docs: toy package]
 import dataclasses as dc
 
 from pydrake.systems.framework import LeafSystem
@@ -78,6 +79,7 @@ class Constant(LeafSystem):
 @declare(check_options=typed_options(ConstantConfig, "identifiers.options"))
 def constant(options):
     return Constant(ConstantConfig(**options).stiffness)
+# [docs: end]
 '''
 
 
@@ -152,12 +154,14 @@ def test_a_metric_is_computed_scored_and_ranked(tmp_path):
     from drake_contact.app import benchmark
     from drake_contact.scoring.metrics import Score, register_metric, unregister_metric
 
+    # [docs: metric]
     score = Score("deepest_mm", "deepest_penetration_m", "deepest (mm)", ("worst",), 3,
                   scale=1e3)
 
     @register_metric(score)
     def deepest(log, scenario):
         return {"deepest_penetration_m": float(np.max(log["penetration_true"]))}
+    # [docs: end]
 
     try:
         result = simulate_scenario(load_scenario("push_constant", duration=2.6))

@@ -267,6 +267,7 @@ def test_a_new_fault_kind_is_one_class_under_one_registration_line():
     from drake_contact import FaultKind, StudyCase, register_fault_kind
     from drake_contact.faults import unregister_fault_kind
 
+    # [docs: fault kind]
     @register_fault_kind
     class ForceDrift(FaultKind):
         """The force reading drifts by magnitude N/s from the fault's start."""
@@ -280,6 +281,7 @@ def test_a_new_fault_kind_is_one_class_under_one_registration_line():
         def corrupt(self, law):
             drift = law.fault.magnitude * (law.t - law.t0)
             law.y = [v + if_then_else(law.on, drift, 0.0) for v in law.u]
+    # [docs: end]
 
     try:
         # Validated: a bad magnitude gets the kind's own words, in one line.
