@@ -34,6 +34,9 @@ extensions = [
     "sphinx.ext.autosummary",
     "sphinx.ext.napoleon",
     "sphinx.ext.mathjax",
+    # MathJax 3 copied into the site, so equations render offline too (the
+    # default loads it from a CDN).
+    "sphinx-mathjax-offline",
     "drake_contact_docs",  # generated references: scenario fields, station signals, studies
 ]
 
