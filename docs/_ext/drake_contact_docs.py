@@ -73,7 +73,7 @@ def _default(field):
     return None
 
 
-def _cell(text: str) -> str:
+def _cell(text) -> str:
     return str(text).replace("|", "\\|").replace("\n", " ")
 
 
@@ -81,27 +81,42 @@ def _code(value) -> str:
     text = repr(value) if isinstance(value, str) else f"{value}"
     if len(text) > 60:
         text = text[:57] + "..."
-    return f"`{_cell(text)}`" if text else ""
+    return f"`{text}`" if text else ""
 
 
-def scenario_rows(cls, prefix: str):
-    """(dotted path, type, default, comment) for every leaf field under
-    ``cls``; a list of dataclasses is described by its element's fields
-    under ``prefix[i]``."""
+def _section(hint):
+    """The dataclass a field of this type holds (itself, or a list's
+    element), or None for a plain value."""
+    element = typing.get_args(hint)[0] if typing.get_origin(hint) is list else hint
+    return element if dataclasses.is_dataclass(element) else None
+
+
+def scenario_rows(cls, prefix: str, *, recurse: bool = True):
+    """(dotted path, type, default, comment) for every field under ``cls``:
+    a section's row has the default "(section)" and is followed by its
+    fields (unless ``recurse`` is false); a list of dataclasses is described
+    by its element's fields under ``prefix[i]``."""
     hints = typing.get_type_hints(cls)
     comments = _field_comments(cls)
     for field in dataclasses.fields(cls):
         path = f"{prefix}.{field.name}" if prefix else field.name
         hint = hints[field.name]
-        element = typing.get_args(hint)[0] if typing.get_origin(hint) is list else None
-        if dataclasses.is_dataclass(hint):
-            yield path, hint.__name__, "(section)", comments[field.name] or hint.__doc__
-            yield from scenario_rows(hint, path)
-        elif element is not None and dataclasses.is_dataclass(element):
-            yield path, f"list of {element.__name__}", "`[]`", comments[field.name]
-            yield from scenario_rows(element, f"{path}[i]")
-        else:
+        section = _section(hint)
+        if section is None:
             yield path, _type_name(hint), _code(_default(field)), comments[field.name]
+            continue
+        listed = section is not hint
+        kind = f"list of {section.__name__}" if listed else section.__name__
+        yield path, kind, "(section)", comments[field.name] or section.__doc__
+        if recurse:
+            yield from scenario_rows(section, f"{path}[i]" if listed else path)
+
+
+def _table(header: list, rows) -> str:
+    """A Markdown table; a ``|`` inside a cell is escaped."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(_cell(cell) for cell in row) + " |" for row in rows]
+    return "\n".join(lines)
 
 
 class _MarkdownDirective(SphinxDirective):
@@ -123,30 +138,20 @@ class ScenarioFields(_MarkdownDirective):
     def markdown(self):
         from drake_contact.scenario import Scenario
 
-        section = self.arguments[0] if self.arguments else ""
-        listed = getattr(self.env, _SECTIONS_LISTED, set())
-        if section:
-            field = {f.name: f for f in dataclasses.fields(Scenario)}.get(section)
-            if field is None:
-                raise self.error(f"Scenario has no section {section!r}")
-            listed.add(section)
-            setattr(self.env, _SECTIONS_LISTED, listed)
-            hint = typing.get_type_hints(Scenario)[section]
-            element = typing.get_args(hint)[0] if typing.get_origin(hint) is list else hint
-            prefix = f"{section}[i]" if element is not hint else section
-            rows = list(scenario_rows(element, prefix))
-            intro = f"{_cell(element.__doc__ or '').strip()}\n\n"
-        else:
-            listed.add("")
-            setattr(self.env, _SECTIONS_LISTED, listed)
-            rows = [row for row in scenario_rows(Scenario, "") if "." not in row[0]
-                    and "[" not in row[0] and row[2] != "(section)"
-                    and not row[1].startswith("list of")]
-            intro = ""
-        table = ["| field | type | default | meaning |", "|---|---|---|---|"]
-        table += [f"| `{path}` | {_cell(kind)} | {default} | {_cell(doc)} |"
-                  for path, kind, default, doc in rows if default != "(section)"]
-        return intro + "\n".join(table)
+        intro, rows = "", scenario_rows(Scenario, "", recurse=False)
+        if self.arguments:
+            name = self.arguments[0]
+            hint = typing.get_type_hints(Scenario).get(name)
+            section = _section(hint) if hint is not None else None
+            if section is None:
+                raise self.error(f"Scenario has no section {name!r}")
+            listed = getattr(self.env, _SECTIONS_LISTED, set())
+            setattr(self.env, _SECTIONS_LISTED, listed | {name})
+            intro = f"{(section.__doc__ or '').strip()}\n\n"
+            rows = scenario_rows(section, f"{name}[i]" if section is not hint else name)
+        return intro + _table(["field", "type", "default", "meaning"], (
+            (f"`{path}`", kind, default, doc) for path, kind, default, doc in rows
+            if default != "(section)"))
 
 
 class StationSignals(_MarkdownDirective):
@@ -156,34 +161,29 @@ class StationSignals(_MarkdownDirective):
         import drake_contact as dc
 
         station = dc.MakeContactDiagram(dc.load_scenario(self.arguments[0]))
-        table = ["| signal | size | meaning | logged as |", "|---|---|---|---|"]
-        for name, signal in station.signals.items():
-            keys = ", ".join(f"`{key}`" for key in signal.log_as) or "not logged"
-            table.append(f"| `{name}` | {signal.size or '-'} | {_cell(signal.meaning)} | {keys} |")
-        return "\n".join(table)
+        return _table(["signal", "size", "meaning", "logged as"], (
+            (f"`{name}`", signal.size or "-", signal.meaning,
+             ", ".join(f"`{key}`" for key in signal.log_as) or "not logged")
+            for name, signal in station.signals.items()))
 
 
 class MeasuredSignalsTable(_MarkdownDirective):
     def markdown(self):
         from drake_contact.measured import MEASUREMENTS
 
-        table = ["| signal | role | size | meaning | station output |", "|---|---|---|---|---|"]
-        for name, m in MEASUREMENTS.items():
-            table.append(f"| `{name}` | `{m.role}` | {m.size} | {_cell(m.meaning)} | "
-                         f"{'yes' if m.station else 'no'} |")
-        return "\n".join(table)
+        return _table(["signal", "role", "size", "meaning", "station output"], (
+            (f"`{name}`", f"`{m.role}`", m.size, m.meaning, "yes" if m.station else "no")
+            for name, m in MEASUREMENTS.items()))
 
 
 class ScoresTable(_MarkdownDirective):
     def markdown(self):
         from drake_contact.scoring.metrics import SCORES
 
-        table = ["| benchmark column | metrics.json key | scale | leaderboard column |",
-                 "|---|---|---|---|"]
-        for score in SCORES:
-            shown = f"{_cell(score.header)} ({' / '.join(score.show)})" if score.show else "CSV only"
-            table.append(f"| `{score.column}` | `{score.key}` | {score.scale:g} | {shown} |")
-        return "\n".join(table)
+        return _table(["benchmark column", "metrics.json key", "scale", "leaderboard column"], (
+            (f"`{score.column}`", f"`{score.key}`", f"{score.scale:g}",
+             f"{score.header} ({' / '.join(score.show)})" if score.show else "CSV only")
+            for score in SCORES))
 
 
 def _study_markdown(text: str, folder: str, drop: set, only: set) -> str:
@@ -275,14 +275,13 @@ def _reexported_data_doc(app, what, name, obj, options, lines):
 def _check_sections(app, env):
     from drake_contact.scenario import Scenario
 
+    from sphinx.util import logging
+
     listed = getattr(env, _SECTIONS_LISTED, set())
-    for field in dataclasses.fields(Scenario):
-        hint = typing.get_type_hints(Scenario)[field.name]
-        element = typing.get_args(hint)[0] if typing.get_origin(hint) is list else hint
-        if dataclasses.is_dataclass(element) and field.name not in listed:
-            from sphinx.util import logging
+    for name, hint in typing.get_type_hints(Scenario).items():
+        if _section(hint) is not None and name not in listed:
             logging.getLogger(__name__).warning(
-                f"the scenario section {field.name!r} is on no page (scenario-fields)")
+                f"the scenario section {name!r} is on no page (scenario-fields)")
 
 
 def _merge_sections(app, env, docnames, other):
