@@ -142,6 +142,8 @@ def _add_controller(builder, scenario, plant, measured: MeasuredSignals):
         name = controller.get_input_port(i).get_name()
         if name in sources:
             builder.Connect(sources[name], controller.get_input_port(i))
+        elif name in STATION_ACTION_INPUTS:
+            builder.ExportInput(controller.get_input_port(i), name)
     # impedance_estimate is connected once the identifiers exist.
     for i in range(controller.num_output_ports()):
         port = controller.get_output_port(i)
@@ -150,6 +152,12 @@ def _add_controller(builder, scenario, plant, measured: MeasuredSignals):
     if contact is not None:
         ports["contact_info"] = contact
     return controller, ports
+
+
+#: Controller inputs the station exports as its own input ports, under the
+#: same name: a policy's action, set from outside the station (the
+#: Gymnasium environment fixes it at each of its steps).
+STATION_ACTION_INPUTS = ("policy_action",)
 
 
 #: Controller outputs the station exports under their own names when a

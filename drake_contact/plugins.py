@@ -70,6 +70,9 @@ STATION_INPUTS = {
     "force_desired": (1, "desired normal force f_d from the scenario's force reference (N)"),
     "impedance_estimate": (3, "[M_e, B_e, K_e] of the identifier named by "
                               "controller.impedance_source (kg, N s/m, N/m)"),
+    "policy_action": (4, "a policy's action (drake_contact.control.policy_spaces.ACTION) "
+                         "from the station's input port of that name (the Gymnasium "
+                         "environment's action)"),
     "plant_state": (6, "TRUE arm state [q; v] (rad, rad/s): ground truth, for test "
                        "harnesses only (the built-in push)"),
 }

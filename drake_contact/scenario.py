@@ -26,6 +26,7 @@ from drake_contact.errors import ScenarioError
 from drake_contact.faults import FaultConfig, validate_faults
 from drake_contact.control.safety_supervisor import SafetyConfig
 from drake_contact.control.nn_compensator import NnCompensatorConfig
+from drake_contact.control.policy import PolicyConfig
 from drake_contact.plant.joint_physics import (
     THESIS_TORQUE_LIMITS, EncoderConfig, JointFrictionConfig)
 from drake_contact.control.push_controller import PushConfig
@@ -67,6 +68,8 @@ class ControllerConfig:
     hybrid: HybridControllerConfig = dc.field(default_factory=HybridControllerConfig)
     # The neural-network compensator added to ``hybrid`` (name: nn, section 4.5).
     nn: NnCompensatorConfig = dc.field(default_factory=NnCompensatorConfig)
+    # A learned policy driving ``hybrid`` (name: policy; drake_contact.control.policy).
+    policy: PolicyConfig = dc.field(default_factory=PolicyConfig)
 
     # Options of any other controller (names to numbers, lists or strings),
     # handed to its factory and checked as it declares. The thesis's

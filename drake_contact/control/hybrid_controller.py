@@ -157,6 +157,7 @@ from drake_contact.plant.arm import (
     CONTROL_PERIOD, LINK_LENGTHS, TIME_TOLERANCE_S, DeclareSampledUpdate, is_sample_time)
 from drake_contact.control.controller_model import ArmModel, ControllerModelConfig
 from drake_contact.plant.planar_arm import solve3
+from drake_contact.control.policy_spaces import ACTION, apply_action
 from drake_contact.errors import ScenarioError, require_finite
 
 CONTACT_LAWS = ("hybrid", "decoupled")
@@ -366,9 +367,12 @@ class HybridControlLaw(LeafSystem):
     stores it. So the law runs once per sample, in the same event as the
     plant step it drives."""
 
-    def __init__(self, config: HybridControllerConfig):
+    def __init__(self, config: HybridControllerConfig, action_input: bool = False):
         super().__init__()
         config.validate()
+        if action_input and config.law != "hybrid":
+            raise ScenarioError(f"controller.hybrid.law = '{config.law}': a policy's action "
+                                "acts on the hybrid law only: choose law: hybrid")
         self._config = config
         self._model = ArmModel(config.model)
         self._joint_impedance = any(config.pose_joint_stiffness) or any(config.pose_joint_damping)
@@ -387,6 +391,13 @@ class HybridControlLaw(LeafSystem):
         held[_INTERNAL] = [0.0, config.approach.start_x, 0.0, 0.0, 0.0, 0.0,
                            config.stiffness_bounds[1], 0.0, 0.0, 0.0]
         self._held = self.DeclareDiscreteState(held)
+        # A policy's action (drake_contact.control.policy), and the law's
+        # held output (the previous sample's) for the policy's observation:
+        # it does not depend on the action.
+        self._action = None
+        if action_input:
+            self._action = self.DeclareVectorInputPort("policy_action", ACTION.size)
+            self.DeclareStateOutputPort("held", self._held)
         self._control = self.DeclareVectorOutputPort(
             "control", _LAW_SIZE, self._calc_control,
             prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket(),
@@ -459,9 +470,16 @@ class HybridControlLaw(LeafSystem):
                 accel[1] += gain * y_sum
                 accel[2] += gain * phi_sum
             if c.law == "hybrid":
-                force_x = f_d + c.force_gain * error + c.force_integral_gain * error_sum
-                if c.contact_damping_x:
-                    force_x -= c.contact_damping_x * xd[0]
+                force_gain, integral_gain, damping_x = (
+                    c.force_gain, c.force_integral_gain, c.contact_damping_x)
+                if self._action is not None:
+                    residual, force_gain, integral_gain, damping_x = apply_action(
+                        self._action.Eval(context), force_gain, integral_gain, damping_x)
+                force_x = f_d + force_gain * error + integral_gain * error_sum
+                if self._action is not None:
+                    force_x += residual
+                if damping_x:
+                    force_x -= damping_x * xd[0]
                 if c.contact_force_rate_damping:
                     force_x -= c.contact_force_rate_damping * (f - f_previous) / CONTROL_PERIOD
             else:
@@ -537,17 +555,23 @@ class HybridController(Diagram):
         from the controller's model (for the compensator's J^T n);
       contact_info (4): [time of the first switch (s) or -1, x, y, phi at
         the latest switch] for the reference generator and identifiers.
+    With ``action_input``: the input policy_action (4, see
+    :mod:`drake_contact.control.policy_spaces`) and the output held (the
+    law's output at the previous sample: its layout's mode, contact_info,
+    ...).
 
     A sub-diagram: the law (:class:`HybridControlLaw`, one Python
     evaluation per sample) and a Demultiplexer that names its outputs.
     """
 
-    def __init__(self, config: HybridControllerConfig):
+    def __init__(self, config: HybridControllerConfig, action_input: bool = False):
         super().__init__()
         builder = DiagramBuilder()
-        law = builder.AddNamedSystem("law", HybridControlLaw(config))
+        law = builder.AddNamedSystem("law", HybridControlLaw(config, action_input))
+        if action_input:
+            builder.ExportOutput(law.GetOutputPort("held"), "held")
         split = builder.AddNamedSystem("outputs", Demultiplexer(_LAW.sizes))
-        builder.Connect(law.get_output_port(), split.get_input_port())
+        builder.Connect(law.GetOutputPort("control"), split.get_input_port())
         for port in range(law.num_input_ports()):
             builder.ExportInput(law.get_input_port(port), law.get_input_port(port).get_name())
         for index, name in enumerate(("joint_torque_commanded", "mode", "contact_info",

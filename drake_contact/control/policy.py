@@ -1,0 +1,311 @@
+"""A learned policy on top of the thesis's hybrid law: the ``policy``
+controller.
+
+The policy sees the measured signals (:data:`~drake_contact.control.policy_spaces.OBSERVATION`)
+and every ``period_ms`` commands a residual on the hybrid law's force and
+scales of its gains (:data:`~drake_contact.control.policy_spaces.ACTION`);
+the law runs every 1 ms with the latest action. The policy is any callable
+from the observation (a float64 vector) to the action (4 numbers):
+
+- ``policy.source: ''``: the zero action, the hybrid law unmodified;
+- ``policy.source: 'package.module:name'``: ``name`` is the callable, or a
+  function of no arguments that returns it (a factory, e.g. one that loads
+  saved weights);
+- ``policy.source: 'path/to/policy.json'`` (or .npz): a :class:`NumpyPolicy`;
+- ``policy.source: external``: the action comes from the station's input
+  port ``policy_action`` (the Gymnasium environment, :mod:`drake_contact.gym`).
+
+Observation and action are computed by the same systems in a scenario, in
+the benchmark and in the Gymnasium environment, so a policy trained there
+runs here unchanged, and a rollout of the environment equals the run of
+the same policy here, log for log.
+"""
+
+import dataclasses as dc
+import importlib
+import json
+from pathlib import Path
+
+import numpy as np
+from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import ConstantVectorSource
+
+from drake_contact.control.hybrid_controller import (
+    _LAW, APPROACH, HybridController, HybridControllerConfig)
+from drake_contact.control.policy_spaces import ACTION, OBSERVATION, check_action, observation
+from drake_contact.errors import ScenarioError, SimulationDiverged, require_finite
+from drake_contact.measured import by_role
+from drake_contact.options import config_from_options
+from drake_contact.plant.arm import CONTROL_PERIOD, DeclareSampledUpdate, is_sample_time
+from drake_contact.plugins import declare
+
+#: ``policy.source`` of a policy whose action is the station's input port.
+EXTERNAL = "external"
+
+
+@dc.dataclass
+class PolicyConfig:
+    """The policy of the ``policy`` controller (see :mod:`drake_contact.control.policy`)."""
+
+    # '' (the zero action: the hybrid law unmodified), 'module:name' (a
+    # callable observation -> action, or a factory of one), a .json or .npz
+    # file of a NumpyPolicy, or 'external' (the station's policy_action input).
+    source: str = ""
+    # The policy acts every this many 1 ms samples (its control period).
+    period_ms: int = 10
+
+    def validate(self, prefix="controller.policy"):
+        if not (isinstance(self.period_ms, int) and 1 <= self.period_ms <= 1000):
+            raise ScenarioError(f"{prefix}.period_ms = {self.period_ms} is out of range: must "
+                                "be an integer in [1, 1000] (ms)")
+        source = self.source
+        if source in ("", EXTERNAL):
+            return
+        if source.endswith((".npz", ".json")):
+            if not Path(source).is_file():
+                raise ScenarioError(f"{prefix}.source = '{source}': no such file")
+        elif ":" not in source:
+            raise ScenarioError(f"{prefix}.source = '{source}' is not '', 'external', a .json "
+                                "or .npz file or 'module:name'")
+
+
+class NumpyPolicy:
+    """A small network in numpy: tanh hidden layers and a tanh output, so
+    its action is within [-1, 1]. ``layers`` is [(W, b), ...], W of shape
+    (outputs, inputs); no hidden layer is a linear policy through tanh."""
+
+    def __init__(self, layers):
+        self.layers = [(np.asarray(w, dtype=float), np.asarray(b, dtype=float))
+                       for w, b in layers]
+        if self.layers[0][0].shape[1] != OBSERVATION.size or \
+                self.layers[-1][0].shape[0] != ACTION.size:
+            raise ValueError(f"a NumpyPolicy maps {OBSERVATION.size} observations to "
+                             f"{ACTION.size} actions; got {self.layers[0][0].shape[1]} -> "
+                             f"{self.layers[-1][0].shape[0]}")
+
+    def __call__(self, observation):
+        h = np.asarray(observation, dtype=float)
+        for w, b in self.layers:
+            h = np.tanh(w @ h + b)
+        return h
+
+    def save(self, path, **about):
+        """Writes the layers to ``path``: .json (text, with ``about``: how it
+        was trained) or .npz."""
+        path = Path(path)
+        if path.suffix == ".json":
+            layers = [{"W": w.tolist(), "b": b.tolist()} for w, b in self.layers]
+            path.write_text(json.dumps({"layers": layers, "about": about}, indent=1) + "\n")
+            return
+        arrays = {}
+        for i, (w, b) in enumerate(self.layers):
+            arrays[f"W{i}"], arrays[f"b{i}"] = w, b
+        np.savez(path, **arrays)
+
+    @classmethod
+    def load(cls, path):
+        """A policy saved by :meth:`save` (.json or .npz)."""
+        path = Path(path)
+        if path.suffix == ".json":
+            data = json.loads(path.read_text())
+            return cls([(layer["W"], layer["b"]) for layer in data["layers"]])
+        with np.load(path) as data:
+            count = len([k for k in data.files if k.startswith("W")])
+            return cls([(data[f"W{i}"], data[f"b{i}"]) for i in range(count)])
+
+
+def zero_policy(observation):
+    """The zero action: the hybrid law unmodified."""
+    return np.zeros(ACTION.size)
+
+
+def load_policy(source: str, prefix="controller.policy.source"):
+    """The callable ``source`` names (see :class:`PolicyConfig`);
+    ScenarioError naming ``prefix`` if it cannot be had."""
+    if source == "":
+        return zero_policy
+    if source.endswith((".npz", ".json")):
+        try:
+            return NumpyPolicy.load(source)
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            raise ScenarioError(f"{prefix} = '{source}' is not a NumpyPolicy: {e}") from None
+    module_name, _, name = source.partition(":")
+    try:
+        found = getattr(importlib.import_module(module_name), name)
+    except (ImportError, AttributeError) as e:
+        raise ScenarioError(f"{prefix} = '{source}' could not be loaded: "
+                            f"{type(e).__name__}: {e}") from None
+    if isinstance(found, type) or getattr(found, "is_policy_factory", False):
+        found = found()
+    if not callable(found):
+        raise ScenarioError(f"{prefix} = '{source}' is not callable")
+    return found
+
+
+def policy_factory(function):
+    """Marks ``function`` (no arguments) as returning the policy, so a
+    ``module:name`` source calls it once to get the policy (e.g. to load
+    weights) instead of taking it as the policy."""
+    function.is_policy_factory = True
+    return function
+
+
+class PolicyObservation(LeafSystem):
+    """The policy's observation (:data:`OBSERVATION`) from the measured
+    signals and the law's held output, at each 1 ms sample (held between).
+
+    Inputs: tip_pose (3), tip_velocity (3), force (1), force_desired (1),
+    law_held (the hybrid law's previous output). Output: observation (10).
+    Its state: the sum of |f_d - f| since the last period boundary, how many
+    samples it holds, the previous sample's force, and the observation."""
+
+    def __init__(self, period_ms: int, y_desired: float, phi_desired: float):
+        super().__init__()
+        self._period = period_ms
+        self._targets = (y_desired, phi_desired)
+        self._pose = self.DeclareVectorInputPort("tip_pose", 3)
+        self._velocity = self.DeclareVectorInputPort("tip_velocity", 3)
+        self._force = self.DeclareVectorInputPort("force", 1)
+        self._force_desired = self.DeclareVectorInputPort("force_desired", 1)
+        self._law = self.DeclareVectorInputPort("law_held", _LAW.size)
+        self._state = self.DeclareDiscreteState(3 + OBSERVATION.size)
+        self._output = self.DeclareVectorOutputPort(
+            "observation", OBSERVATION.size, self._calc,
+            prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket(),
+                                   self.time_ticket()})
+        DeclareSampledUpdate(self, self._update)
+
+    def _next(self, context):
+        """(the state after this sample, the observation at it)."""
+        error_sum, count, force_previous = context.get_discrete_state(self._state).value()[:3]
+        t = context.get_time()
+        pose = self._pose.Eval(context)
+        f = self._force.Eval(context)[0]
+        f_d = self._force_desired.Eval(context)[0]
+        law = self._law.Eval(context)
+        error = abs(f_d - f)
+        mean = (error_sum + error) / (count + 1.0)
+        first_contact = law[_LAW.info][0]
+        values = observation(
+            f_d, f, force_previous, mean,
+            self._velocity.Eval(context)[0], pose[1] - self._targets[0],
+            pose[2] - self._targets[1], 0.0 if law[_LAW.mode] == APPROACH else 1.0,
+            t - first_contact if first_contact >= 0.0 else 0.0)
+        require_finite(np.array(values), context, "controller/policy_observation",
+                       "the policy's observation")
+        boundary = round(t / CONTROL_PERIOD) % self._period == 0
+        state = [0.0, 0.0, f] if boundary else [error_sum + error, count + 1.0, f]
+        return state + values, values
+
+    def _calc(self, context, output):
+        if not is_sample_time(context.get_time()):
+            output.SetFromVector(context.get_discrete_state(self._state).value()[3:])
+            return
+        output.SetFromVector(self._next(context)[1])
+
+    def _update(self, context, state):
+        if is_sample_time(context.get_time()):
+            state.set_value(self._next(context)[0])
+
+
+class PolicyRunner(LeafSystem):
+    """Calls ``policy`` on the observation every ``period_ms`` samples and
+    holds its action (checked: ACTION.size finite numbers) until the next;
+    the action at a boundary acts from that sample on.
+
+    Input: observation (10). Output: policy_action (4)."""
+
+    def __init__(self, policy, period_ms: int):
+        super().__init__()
+        self._policy = policy
+        self._period = period_ms
+        self._observation = self.DeclareVectorInputPort("observation", OBSERVATION.size)
+        self._held = self.DeclareDiscreteState(ACTION.size)
+        self._output = self.DeclareVectorOutputPort(
+            "policy_action", ACTION.size, self._calc,
+            prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket(),
+                                   self.time_ticket()})
+        DeclareSampledUpdate(self, lambda context, state: state.set_value(
+            self._output.Eval(context)))
+
+    def _calc(self, context, output):
+        t = context.get_time()
+        if not (is_sample_time(t) and round(t / CONTROL_PERIOD) % self._period == 0):
+            output.SetFromVector(context.get_discrete_state(self._held).value())
+            return
+        try:
+            action = check_action(self._policy(self._observation.Eval(context).copy()),
+                                  "the policy's action")
+        except ValueError as e:
+            raise SimulationDiverged(f"stopped at t = {t:.3f} s: {e} (controller/policy)",
+                                     time_s=t, where="controller/policy") from None
+        output.SetFromVector(action)
+
+
+@dc.dataclass
+class PolicyControllerOptions:
+    """Options of the ``policy`` controller: its hybrid law and its policy."""
+
+    hybrid: HybridControllerConfig = dc.field(default_factory=HybridControllerConfig)
+    policy: PolicyConfig = dc.field(default_factory=PolicyConfig)
+
+
+class PolicyController(Diagram):
+    """The thesis's hybrid controller driven by a policy: the law
+    (:class:`HybridController` with its ``policy_action`` input), the
+    observation (:class:`PolicyObservation`) and, unless the policy is
+    external, the :class:`PolicyRunner` calling ``policy``.
+
+    Inputs: the hybrid controller's measured ones and force_desired, and
+    with an external policy policy_action (4). Outputs: as the hybrid
+    controller's, plus policy_observation (10) and policy_action (4, not
+    with an external policy: the station's input is the action)."""
+
+    def __init__(self, hybrid: HybridControllerConfig, config: PolicyConfig, policy=None):
+        super().__init__()
+        builder = DiagramBuilder()
+        law = builder.AddNamedSystem("hybrid", HybridController(hybrid, action_input=True))
+        station = by_role()
+        for role in ("tip_pose", "tip_velocity", "joint_positions", "joint_velocities", "force"):
+            builder.ExportInput(law.GetInputPort(role), station[role])
+        builder.ExportInput(law.GetInputPort("force_desired"), "force_desired")
+        stiffness = builder.AddNamedSystem(
+            "stiffness_estimate", ConstantVectorSource([hybrid.stiffness_estimate]))
+        builder.Connect(stiffness.get_output_port(), law.GetInputPort("stiffness_estimate"))
+        watch = builder.AddNamedSystem(
+            "observation", PolicyObservation(config.period_ms, hybrid.y_desired,
+                                             hybrid.phi_desired))
+        for role in ("tip_pose", "tip_velocity", "force"):
+            builder.ConnectInput(station[role], watch.GetInputPort(role))
+        builder.ConnectInput("force_desired", watch.GetInputPort("force_desired"))
+        builder.Connect(law.GetOutputPort("held"), watch.GetInputPort("law_held"))
+        if config.source == EXTERNAL:
+            builder.ExportInput(law.GetInputPort("policy_action"), "policy_action")
+        else:
+            runner = builder.AddNamedSystem(
+                "policy", PolicyRunner(policy or load_policy(config.source), config.period_ms))
+            builder.Connect(watch.get_output_port(), runner.get_input_port())
+            builder.Connect(runner.get_output_port(), law.GetInputPort("policy_action"))
+            builder.ExportOutput(runner.get_output_port(), "policy_action")
+        builder.ExportOutput(watch.get_output_port(), "policy_observation")
+        for name in ("joint_torque_commanded", "mode", "contact_info", "tip_jacobian"):
+            builder.ExportOutput(law.GetOutputPort(name), name)
+        builder.BuildInto(self)
+
+
+@declare(sections=("hybrid", "policy"), contender=False, unlogged=("tip_jacobian",), signals={
+    "policy_observation": "the policy's observation (drake_contact.control.policy_spaces."
+                          "OBSERVATION_FIELDS: each signal over its scale)",
+    "policy_action": "the policy's action [force_residual, force_gain_scale, "
+                     "integral_gain_scale, damping_x], each in [-1, 1] before clipping"})
+def policy(options: dict):
+    """The hybrid law driven by a policy; options: ``hybrid`` (the fields of
+    :class:`HybridControllerConfig`, law hybrid) and ``policy`` (of
+    :class:`PolicyConfig`)."""
+    config = config_from_options(PolicyControllerOptions, options, "controller")
+    config.hybrid.validate("controller.hybrid")
+    if config.hybrid.law != "hybrid":
+        raise ScenarioError(f"controller.hybrid.law = '{config.hybrid.law}': the policy "
+                            "controller acts on the hybrid law: choose law: hybrid")
+    config.policy.validate("controller.policy")
+    return PolicyController(config.hybrid, config.policy)
