@@ -12,7 +12,7 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "drake_contact"
 #: The package's front door re-exports both layers; it is nobody's import.
-FACADES = {"drake_contact", "drake_contact.__main__"}
+FACADES = {"drake_contact", "drake_contact.__main__", "drake_contact.gym"}
 
 
 def module_name(path: Path) -> str:
