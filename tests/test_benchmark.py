@@ -17,8 +17,9 @@ from drake_contact.scoring.metrics import step_metrics
 def test_default_contenders_are_the_thesis_robust_and_installed_ones_but_push():
     names = contender_names()
     assert names[:len(SCENARIO_CONTENDERS)] == list(SCENARIO_CONTENDERS)
-    assert {"impedance", "admittance", "parallel_force", "jt_pi"} <= set(names)
-    assert "push" not in names
+    assert {"impedance", "admittance", "parallel_force", "jt_pi", "learned_residual"} <= set(names)
+    # Harnesses, and the policy controller without a policy, are not.
+    assert "push" not in names and "policy" not in names
     with pytest.raises(ScenarioError, match="--controllers: 'pid' is neither"):
         contender_names("hybrid,pid")
 
@@ -75,11 +76,17 @@ def test_step_metrics_of_a_first_order_response_by_hand():
     assert out["step_unsettled"] == 0
 
 
-def test_quick_suite_ranks_the_example_plugin_beside_the_thesis_controller(tmp_path):
+#: The quick suite's contenders below.
+CONTENDERS = ("hybrid", "jt_pi", "learned_residual")
+
+
+def test_quick_suite_ranks_the_example_plugins_beside_the_thesis_controller(tmp_path):
+    """jt_pi and the trained policy learned_residual (examples/), both
+    installed by the README's test command, ranked beside hybrid."""
     out = tmp_path / "bench"
     result = subprocess.run(
         [sys.executable, "-m", "drake_contact", "benchmark", "--suite", "quick", "--out",
-         str(out), "--controllers", "hybrid,jt_pi", "--identifiers", "rls,rls_matched",
+         str(out), "--controllers", ",".join(CONTENDERS), "--identifiers", "rls,rls_matched",
          "--workers", "2"],
         cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr
@@ -87,14 +94,15 @@ def test_quick_suite_ranks_the_example_plugin_beside_the_thesis_controller(tmp_p
         board = list(csv.DictReader(f))
     quick = SUITES["quick"]
     assert {(e["contender"], e["task"]) for e in board} == {
-        (c, t) for c in ("hybrid", "jt_pi") for t in (*quick.tasks, "all")}
+        (c, t) for c in CONTENDERS for t in (*quick.tasks, "all")}
     with (out / "runs.csv").open() as f:
         runs = list(csv.DictReader(f))
-    assert len(runs) == 2 * len(quick.tasks) * len(quick.walls)
+    assert len(runs) == len(CONTENDERS) * len(quick.tasks) * len(quick.walls)
     assert all(r["status"] in ("completed", "lost_contact") for r in runs)
     assert all(float(r["force_rmse_n"]) > 0 for r in runs)
     text = (out / "leaderboard.md").read_text()
     assert "| jt_pi |" in text and f"## square: {TASKS['square'][0]}" in text
+    assert "| learned_residual |" in text
     html = (out / "leaderboard.html").read_text()
     assert html.count("data:image/png;base64,") == len(quick.tasks)
     # The identifiers: one run per task and wall, both side by side, scored
@@ -111,9 +119,9 @@ def test_quick_suite_ranks_the_example_plugin_beside_the_thesis_controller(tmp_p
     # Rerunning the command runs nothing again.
     again = subprocess.run(
         [sys.executable, "-m", "drake_contact", "benchmark", "--suite", "quick", "--out",
-         str(out), "--controllers", "hybrid,jt_pi", "--identifiers", "rls,rls_matched"],
+         str(out), "--controllers", ",".join(CONTENDERS), "--identifiers", "rls,rls_matched"],
         cwd=tmp_path, capture_output=True, text=True, timeout=300)
-    assert again.returncode == 0 and "12 runs (0 now, 12 from before)" in again.stdout
+    assert again.returncode == 0 and "16 runs (0 now, 16 from before)" in again.stdout
 
 
 def test_bad_benchmark_input_exits_2_in_one_line(tmp_path):

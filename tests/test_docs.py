@@ -181,4 +181,4 @@ def test_the_readme_is_one_screen_and_starts_with_the_commands():
     assert len(readme) <= 250
     first = "\n".join(readme[:40])
     assert "pip install -c constraints.txt . && .venv/bin/drake-contact reproduce" in first
-    assert "'.[test]' ./examples/jt_pi_controller && .venv/bin/pytest -q" in first
+    assert "'.[test]' ./examples/jt_pi_controller ./examples/learned_force_policy && .venv/bin/pytest -q" in first
