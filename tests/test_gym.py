@@ -133,6 +133,21 @@ def test_a_rollout_equals_the_run_of_the_same_policy_as_the_controller(tmp_path)
     assert np.abs(log["policy_action"][-1]).max() > 0.01  # the policy acted
 
 
+def test_a_wall_of_1e9_n_per_m_diverges_into_a_termination_with_the_penalty():
+    env = ForceTrackingEnv(task="hold", duration_s=8.0, walls=[(1e9, 100.0)])
+    env.reset(seed=0)
+    for step in range(1, env.steps + 1):
+        observation, reward, terminated, truncated, info = env.step(np.zeros(4))
+        if terminated or truncated:
+            break
+    assert terminated and not truncated
+    assert info["diverged"].startswith(f"diverged at t = {info['time_s']:.3f} s: the contact "
+                                       "force")
+    assert "exceeds simulation.force_limit = 500.0 N" in info["diverged"]
+    assert reward == LOWEST_REWARD * (env.steps - step + 1)
+    assert np.all(np.isfinite(observation))
+
+
 def test_a_simulator_error_terminates_with_the_penalty():
     env = ForceTrackingEnv(task="hold", duration_s=2.0)
     env.reset(seed=1)

@@ -186,6 +186,31 @@ class ScoresTable(_MarkdownDirective):
             for score in SCORES))
 
 
+class PolicySpaces(_MarkdownDirective):
+    """The policy's observation and action, from policy_spaces."""
+
+    def markdown(self):
+        from drake_contact.control import policy_spaces as ps
+
+        observation = _table(["index", "observation", "scale", "signal"], (
+            (i, f"`{name}`", f"{scale:g}", meaning)
+            for i, (name, scale, meaning) in enumerate(ps.OBSERVATION_FIELDS)))
+        effects = {
+            "force_residual": f"adds {ps.RESIDUAL_N:g} a N to the hybrid law's force command "
+                              "along x",
+            "force_gain_scale": f"K_fp times {ps.GAIN_SCALE_BASE:g}^a",
+            "integral_gain_scale": f"K_fi times {ps.GAIN_SCALE_BASE:g}^a",
+            "damping_x": f"D_x + {ps.DAMPING_N_S_PER_M:g} a N s/m, at least 0"}
+        if set(effects) != set(ps.ACTION.names()):
+            raise self.error(f"policy-spaces: document every action field: {ps.ACTION.names()}")
+        action = _table(["index", "action a", "effect in contact"], (
+            (i, f"`{name}`", effects[name]) for i, name in enumerate(ps.ACTION.names())))
+        return (f"**Observation** ({ps.OBSERVATION.size}, each signal over its scale, clipped "
+                f"to ±{ps.OBSERVATION_BOUND:g}):\n\n{observation}\n\n**Action** "
+                f"({ps.ACTION.size}, each in [{ps.ACTION_LOW:g}, {ps.ACTION_HIGH:g}], clipped "
+                f"there):\n\n{action}")
+
+
 def _study_markdown(text: str, folder: str, drop: set, only: set) -> str:
     """A study's Markdown as part of a page: its title and the dropped
     sections removed, headings as bold lines (the page keeps its own
@@ -295,6 +320,7 @@ def setup(app):
     app.add_directive("measured-signals", MeasuredSignalsTable)
     app.add_directive("scores", ScoresTable)
     app.add_directive("generated", Generated)
+    app.add_directive("policy-spaces", PolicySpaces)
     app.connect("autodoc-process-docstring", _reexported_data_doc)
     app.connect("env-check-consistency", _check_sections)
     app.connect("env-merge-info", _merge_sections)

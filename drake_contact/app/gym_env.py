@@ -238,7 +238,8 @@ class ForceTrackingEnv(DrakeGymEnv):
         self._had_contact = False
         self._step = 0
         context = self.simulator.get_context()
-        return self.observation_port.Eval(context).copy(), self._info(context)
+        self._observation = self.observation_port.Eval(context).copy()
+        return self._observation, self._info(context)
 
     def step(self, action):
         """Advances ``period_ms`` with ``action`` (checked: ValueError for a
@@ -260,12 +261,15 @@ class ForceTrackingEnv(DrakeGymEnv):
             failure = str(e).splitlines()[0]
         if not failure:
             failure = self._diverged(system, context)
-        observation = self.observation_port.Eval(context).copy()
-        info = self._info(context)
         left = self.steps - self._step
         if failure:
-            info["diverged"] = failure
-            return observation, LOWEST_REWARD * (left + 1), True, False, info
+            # The state may not be finite: the last good observation, and
+            # what is known without evaluating the diagram.
+            info = self._facts() | {"time_s": context.get_time(), "diverged": failure}
+            return self._observation, LOWEST_REWARD * (left + 1), True, False, info
+        observation = self.observation_port.Eval(context).copy()
+        self._observation = observation
+        info = self._info(context)
         in_contact = observation[OBSERVATION.in_contact] == 1.0
         reward = 0.0
         if self._had_contact or in_contact:
@@ -290,12 +294,16 @@ class ForceTrackingEnv(DrakeGymEnv):
 
     def _info(self, context) -> dict:
         system = self.simulator.get_system()
-        return {"time_s": context.get_time(), "task": self.episode_task,
+        return {"time_s": context.get_time(),
                 "force_true": float(system.GetOutputPort("contact_force_true").Eval(context)[0]),
                 "force_desired": float(system.GetOutputPort("force_desired").Eval(context)[0]),
                 "in_contact": bool(system.GetOutputPort("mode").Eval(context)[0] != APPROACH),
-                "stiffness": self.drawn["stiffness"], "damping": self.drawn["damping"],
-                "law": self.drawn.get("law", "linear"),
+                } | self._facts()
+
+    def _facts(self) -> dict:
+        """The episode's environment: the ground truth for scoring."""
+        return {"task": self.episode_task, "stiffness": self.drawn["stiffness"],
+                "damping": self.drawn["damping"], "law": self.drawn.get("law", "linear"),
                 "friction_coefficient": self.drawn.get("friction_coefficient", 0.0),
                 "drive_scale": drive_scale(self.drawn), "seed": self.drawn["seed"],
                 "fault": self.drawn.get("fault")}
