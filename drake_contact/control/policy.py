@@ -155,7 +155,8 @@ class PolicyObservation(LeafSystem):
     signals and the law's held output, at each 1 ms sample (held between).
 
     Inputs: tip_pose (3), tip_velocity (3), force (1), force_desired (1),
-    law_held (the hybrid law's previous output). Output: observation (10).
+    law_held (the hybrid law's previous output). Output: observation (10)
+    (and next_state, the state after this sample, which the update stores).
     Its state: the sum of |f_d - f| since the last period boundary, how many
     samples it holds, the previous sample's force, and the observation."""
 
@@ -169,16 +170,25 @@ class PolicyObservation(LeafSystem):
         self._force_desired = self.DeclareVectorInputPort("force_desired", 1)
         self._law = self.DeclareVectorInputPort("law_held", _LAW.size)
         self._state = self.DeclareDiscreteState(3 + OBSERVATION.size)
-        self._output = self.DeclareVectorOutputPort(
-            "observation", OBSERVATION.size, self._calc,
-            prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket(),
-                                   self.time_ticket()})
-        DeclareSampledUpdate(self, self._update)
+        ticket = {self.all_input_ports_ticket(), self.xd_ticket(), self.time_ticket()}
+        # The state after this sample (held between samples): computed once
+        # per sample, cached, read by the observation and by the update.
+        self._next = self.DeclareVectorOutputPort(
+            "next_state", 3 + OBSERVATION.size, self._calc_next, prerequisites_of_calc=ticket)
+        self.DeclareVectorOutputPort(
+            "observation", OBSERVATION.size,
+            lambda context, output: output.SetFromVector(self._next.Eval(context)[3:]),
+            prerequisites_of_calc=ticket)
+        DeclareSampledUpdate(self, lambda context, state: state.set_value(
+            self._next.Eval(context)))
 
-    def _next(self, context):
-        """(the state after this sample, the observation at it)."""
-        error_sum, count, force_previous = context.get_discrete_state(self._state).value()[:3]
+    def _calc_next(self, context, output):
+        held = context.get_discrete_state(self._state).value()
         t = context.get_time()
+        if not is_sample_time(t):
+            output.SetFromVector(held)
+            return
+        error_sum, count, force_previous = held[:3].tolist()
         pose = self._pose.Eval(context)
         f = self._force.Eval(context)[0]
         f_d = self._force_desired.Eval(context)[0]
@@ -195,17 +205,7 @@ class PolicyObservation(LeafSystem):
                        "the policy's observation")
         boundary = round(t / CONTROL_PERIOD) % self._period == 0
         state = [0.0, 0.0, f] if boundary else [error_sum + error, count + 1.0, f]
-        return state + values, values
-
-    def _calc(self, context, output):
-        if not is_sample_time(context.get_time()):
-            output.SetFromVector(context.get_discrete_state(self._state).value()[3:])
-            return
-        output.SetFromVector(self._next(context)[1])
-
-    def _update(self, context, state):
-        if is_sample_time(context.get_time()):
-            state.set_value(self._next(context)[0])
+        output.SetFromVector(state + values)
 
 
 class PolicyRunner(LeafSystem):
@@ -284,10 +284,10 @@ class PolicyController(Diagram):
         else:
             runner = builder.AddNamedSystem(
                 "policy", PolicyRunner(policy or load_policy(config.source), config.period_ms))
-            builder.Connect(watch.get_output_port(), runner.get_input_port())
+            builder.Connect(watch.GetOutputPort("observation"), runner.get_input_port())
             builder.Connect(runner.get_output_port(), law.GetInputPort("policy_action"))
             builder.ExportOutput(runner.get_output_port(), "policy_action")
-        builder.ExportOutput(watch.get_output_port(), "policy_observation")
+        builder.ExportOutput(watch.GetOutputPort("observation"), "policy_observation")
         for name in ("joint_torque_commanded", "mode", "contact_info", "tip_jacobian"):
             builder.ExportOutput(law.GetOutputPort(name), name)
         builder.BuildInto(self)
