@@ -26,13 +26,15 @@ it is logged under). A new signal is one ``signals.export(...)`` line here.
 """
 
 import dataclasses as dc
+import re
 import zlib
 
 import numpy as np
 from pydrake.common import RandomGenerator
 from pydrake.systems.framework import Diagram, DiagramBuilder, PortDataType
 from pydrake.systems.primitives import (
-    Adder, ConstantVectorSource, MatrixGain, Multiplexer, RandomSource, SymbolicVectorSystem)
+    Adder, ConstantVectorSource, Demultiplexer, MatrixGain, Multiplexer, RandomSource,
+    SymbolicVectorSystem)
 from pydrake.symbolic import Variable, floor, if_then_else
 
 from drake_contact.control.force_reference import ForceReference
@@ -42,7 +44,8 @@ from drake_contact.errors import ScenarioError
 from drake_contact.faults import ChainFaults, FaultClock
 from drake_contact.identification.identifiers import AddIdentifiers
 from drake_contact.measured import MEASUREMENTS, MeasuredSignals
-from drake_contact.plant.arm import CONTROL_PERIOD, TIME_TOLERANCE_S, AddArmPlant, MakeArmModel
+from drake_contact.plant.arm import (
+    CONTROL_PERIOD, TIME_TOLERANCE_S, AddArmPlant, MakeArmModel, arm_instances)
 from drake_contact.plant.compliant_wall import CompliantWall
 from drake_contact.plant.joint_physics import (
     AddEncoders, AddJointFriction, AddTorqueSaturation, check_friction_stability,
@@ -69,33 +72,111 @@ class Signal:
 
 
 class _Signals:
-    """Collects the station's exports: one call documents, exports and logs
-    a signal."""
+    """Collects one environment's exports: one call documents and logs a
+    signal (:func:`_export_envs` exports them)."""
 
-    def __init__(self, builder):
-        self._builder = builder
-        self.signals = {}
+    def __init__(self):
+        self.exported = {}
 
     def export(self, name, port, meaning, *, log_as=None, log=True):
         """Exports ``port`` as ``name``; logs it under ``name`` (a size-1
         port as a 1-D log), or under the keys of ``log_as``."""
         if log_as is None:
             log_as = {name: 0 if port.size() == 1 else slice(0, port.size())} if log else {}
-        self._builder.ExportOutput(port, name)
-        self.signals[name] = Signal(port.size(), meaning, dict(log_as))
+        self.exported[name] = (port, meaning, dict(log_as))
 
 
 class ContactStation(Diagram):
-    """The contact diagram of one scenario (built by :func:`MakeContactDiagram`).
+    """The contact diagram of one scenario, or of an ensemble of N
+    environments (built by :func:`MakeContactDiagram` or
+    :func:`MakeEnsembleDiagram`).
 
-    ``scenario`` is the scenario it was built from; ``signals`` maps each
-    exported output port's name to its :class:`Signal`. Everything that
-    evolves lives in the Context, as in any Diagram."""
+    ``scenarios`` are the environments' scenarios, in the arm axis's order
+    (``scenario`` is the first, the only one of a one-environment station);
+    ``signals`` maps each exported output port's name to its
+    :class:`Signal`, whose size is one environment's: the port carries
+    ``num_envs`` of them, environment i's at ``[size * i, size * (i + 1))``.
+    Everything that evolves lives in the Context, as in any Diagram."""
 
-    def __init__(self, scenario: Scenario, signals: dict):
+    def __init__(self, scenarios, signals: dict):
         super().__init__()
-        self.scenario = scenario
+        self.scenarios = list(scenarios)
+        self.scenario = self.scenarios[0]
+        self.num_envs = len(self.scenarios)
         self.signals = signals
+
+
+class _Env:
+    """Environment ``index``'s view of the station's builder: adds its
+    systems as ``<name>@<index>`` (as ``<name>`` in a one-environment
+    station) and connects like the DiagramBuilder it wraps."""
+
+    def __init__(self, builder, index: int, count: int):
+        self.builder, self.index, self.count = builder, index, count
+
+    def name(self, name: str) -> str:
+        return name if self.count == 1 else f"{name}@{self.index}"
+
+    def AddNamedSystem(self, name, system):
+        return self.builder.AddNamedSystem(self.name(name), system)
+
+    def AddSystem(self, system):
+        system.set_name(self.name(system.get_name()))
+        return self.builder.AddSystem(system)
+
+    def Connect(self, source, destination):
+        self.builder.Connect(source, destination)
+
+
+def _add_role(builder, name, count, *, per_env=None, shared=None):
+    """Adds one role of the station for ``count`` environments: ``per_env``,
+    one system per environment (named ``name`` in a one-environment
+    station, ``<name>@<i>`` otherwise), or ``shared``, one system serving
+    all of them on arm-axis ports (each port ``count`` times an
+    environment's size, environment i's values at ``[k i, k (i + 1))``),
+    behind a Multiplexer per input (``<name>_<port>_in``) and a
+    Demultiplexer per vector output (``<name>_<port>_out``).
+
+    Returns (per environment: (the role's input ports by name, its vector
+    output ports by name), to wire it as a single system; the added
+    systems)."""
+    if shared is None:
+        added = [builder.AddNamedSystem(name if count == 1 else f"{name}@{i}", system)
+                 for i, system in enumerate(per_env)]
+        return [(_input_ports(s), _vector_outputs(s)) for s in added], added
+    return _role_views(builder, name, count, builder.AddNamedSystem(name, shared)), [shared]
+
+
+def _role_views(builder, name, count, system):
+    """Per environment (its input ports by name, its vector output ports by
+    name) of ``system``, added to ``builder`` to serve ``count``
+    environments on arm-axis ports: a Multiplexer feeds each input, a
+    Demultiplexer splits each output."""
+    views = [({}, {}) for _ in range(count)]
+    for port_name, port in _input_ports(system).items():
+        mux = builder.AddNamedSystem(f"{name}_{port_name}_in",
+                                     Multiplexer([port.size() // count] * count))
+        builder.Connect(mux.get_output_port(), port)
+        for i in range(count):
+            views[i][0][port_name] = mux.get_input_port(i)
+    for port_name, port in _vector_outputs(system).items():
+        split = builder.AddNamedSystem(f"{name}_{port_name}_out",
+                                       Demultiplexer([port.size() // count] * count))
+        builder.Connect(port, split.get_input_port())
+        for i in range(count):
+            views[i][1][port_name] = split.get_output_port(i)
+    return views
+
+
+def _input_ports(system):
+    return {system.get_input_port(i).get_name(): system.get_input_port(i)
+            for i in range(system.num_input_ports())}
+
+
+def _vector_outputs(system):
+    return {system.get_output_port(i).get_name(): system.get_output_port(i)
+            for i in range(system.num_output_ports())
+            if system.get_output_port(i).get_data_type() == PortDataType.kVectorValued}
 
 
 def SampleHold(period_s, size, time_step):
@@ -112,46 +193,64 @@ def SampleHold(period_s, size, time_step):
                                 time_period=time_step)
 
 
-def _add_controller(builder, scenario, plant, measured: MeasuredSignals):
-    """Adds the scenario's controller (:func:`drake_contact.plugins.MakeController`)
-    as ``controller``, the force reference if it reads ``force_desired``,
-    and the station's contact detector if it has no ``contact_info`` but
-    something needs one; connects every input by name. Returns (controller,
-    {signal name: output port} of what the station exports from it)."""
+def _add_controller(builder, scenarios, states, measured):
+    """Adds the scenarios' controller (:func:`drake_contact.plugins.MakeController`)
+    as ``controller`` (one system for all environments when its plug-in
+    declares ``ensemble``, else one per environment), the force reference
+    if it reads ``force_desired``, and the station's contact detector if it
+    has no ``contact_info`` but something needs one; connects every input by
+    name. ``states``: each environment's plant state port; ``measured``:
+    each one's MeasuredSignals. Returns (the controller's systems, per
+    environment {input name: port}, {signal name: output port} of what the
+    station exports from it)."""
+    scenario = scenarios[0]
     config = scenario.controller
-    system = MakeController(config.name, config.factory_options())
-    controller = builder.AddNamedSystem("controller", system)
-    sources = dict(measured.items()) | {"plant_state": plant.get_state_output_port()}
-    ports = {}
-    contact = None
-    if controller.HasOutputPort("contact_info"):
-        contact = controller.GetOutputPort("contact_info")
-    elif controller.HasInputPort("force_desired") or scenario.identifiers:
-        detector = builder.AddNamedSystem("contact_detector", ContactDetector())
-        builder.Connect(measured.force_filtered, detector.GetInputPort("force"))
-        builder.Connect(measured.tip_pose_measured, detector.GetInputPort("tip_pose"))
-        contact = detector.GetOutputPort("contact_info")
-        ports["mode"] = detector.GetOutputPort("mode")
-    if controller.HasInputPort("force_desired"):
-        reference = builder.AddNamedSystem(
-            "force_reference", ForceReference(scenario.force_reference))
-        builder.Connect(contact, reference.GetInputPort("contact_info"))
-        sources["force_desired"] = reference.GetOutputPort("force_desired")
-        ports["force_desired"] = sources["force_desired"]
-    for i in range(controller.num_input_ports()):
-        name = controller.get_input_port(i).get_name()
-        if name in sources:
-            builder.Connect(sources[name], controller.get_input_port(i))
-        elif name in STATION_ACTION_INPUTS:
-            builder.ExportInput(controller.get_input_port(i), name)
+    declared = controller_declaration(config.name)
+    options = [s.controller.factory_options() for s in scenarios]
+    if len(scenarios) > 1 and declared.ensemble:
+        views, systems = _add_role(builder, "controller", len(scenarios),
+                                   shared=MakeController(config.name, options,
+                                                         count=len(scenarios)))
+    else:
+        views, systems = _add_role(builder, "controller", len(scenarios), per_env=[
+            MakeController(config.name, o) for o in options])
+    inputs = [view[0] for view in views]
+    ports = [dict(view[1]) for view in views]
+    sources = [dict(m.items()) | {"plant_state": state} for m, state in zip(measured, states)]
+    contact = [p.get("contact_info") for p in ports]
+    if "contact_info" not in ports[0] and ("force_desired" in inputs[0] or scenario.identifiers):
+        views, _ = _add_role(builder, "contact_detector", len(scenarios), per_env=[
+            ContactDetector() for _ in scenarios])
+        for (detector_in, detector_out), m, p in zip(views, measured, ports):
+            builder.Connect(m.force_filtered, detector_in["force"])
+            builder.Connect(m.tip_pose_measured, detector_in["tip_pose"])
+            p["mode"] = detector_out["mode"]
+        contact = [view[1]["contact_info"] for view in views]
+    if "force_desired" in inputs[0]:
+        configs = [s.force_reference for s in scenarios]
+        if len(scenarios) > 1 and getattr(ForceReference, "ensemble", False):
+            views, _ = _add_role(builder, "force_reference", len(scenarios),
+                                 shared=ForceReference(configs))
+        else:
+            views, _ = _add_role(builder, "force_reference", len(scenarios),
+                                 per_env=[ForceReference(c) for c in configs])
+        for (reference_in, reference_out), c, source, p in zip(views, contact, sources, ports):
+            builder.Connect(c, reference_in["contact_info"])
+            source["force_desired"] = p["force_desired"] = reference_out["force_desired"]
+    for i, (own, source) in enumerate(zip(inputs, sources)):
+        for name, port in own.items():
+            if name in source:
+                builder.Connect(source[name], port)
+            elif name in STATION_ACTION_INPUTS:
+                if len(scenarios) > 1:
+                    raise ScenarioError(f"controller '{config.name}' reads {name} from outside "
+                                        "the station: an ensemble cannot export it")
+                builder.ExportInput(port, name)
     # impedance_estimate is connected once the identifiers exist.
-    for i in range(controller.num_output_ports()):
-        port = controller.get_output_port(i)
-        if port.get_data_type() == PortDataType.kVectorValued:
-            ports[port.get_name()] = port
-    if contact is not None:
-        ports["contact_info"] = contact
-    return controller, ports
+    for p, c in zip(ports, contact):
+        if c is not None:
+            p["contact_info"] = c
+    return systems, inputs, ports
 
 
 #: Controller inputs the station exports as its own input ports, under the
@@ -177,17 +276,39 @@ DETECTOR_SIGNALS = {
 }
 
 
-def _add_arm_and_wall(builder, scenario):
-    """The plant, its tip kinematics, the wall (behind the scenario's
-    environment faults) and the joint friction, wired; returns (plant,
-    scene_graph, tip, wall, friction, faults): ``faults`` is a
-    :class:`_FaultPorts` (no clock when the scenario has no faults)."""
-    plant, scene_graph = AddArmPlant(builder, scenario.arm)
-    state_port = plant.get_state_output_port()
-    joint_inertias = np.diag(plant.CalcMassMatrix(plant.CreateDefaultContext()))
-    check_friction_stability(scenario.joint_friction, joint_inertias, scenario.arm.time_step)
+def _add_arms(builder, scenarios):
+    """The plant with one arm per environment (:func:`AddArmPlant`); returns
+    (plant, scene_graph, each environment's plant state port [q; v] (6),
+    its actuation port (3), its joints' inertias (M's diagonal at q0))."""
+    plant, scene_graph = AddArmPlant(builder, [s.arm for s in scenarios])
+    inertias = np.diag(plant.CalcMassMatrix(plant.CreateDefaultContext()))
+    if len(scenarios) == 1:
+        return (plant, scene_graph, [plant.get_state_output_port()],
+                [plant.get_actuation_input_port()], [inertias])
+    arms = arm_instances(plant)
+    return (plant, scene_graph, [plant.get_state_output_port(arm) for arm in arms],
+            [plant.get_actuation_input_port(arm) for arm in arms],
+            [inertias[3 * i:3 * i + 3] for i in range(len(arms))])
 
-    tip = builder.AddNamedSystem("tip_kinematics", TipKinematics(plant))
+
+@dc.dataclass
+class _Physics:
+    """One environment's true physics around its arm: the tip kinematics,
+    the wall (behind its environment faults), the joint friction, its faults'
+    ports, and the torque the wall and the friction put on the joints."""
+
+    tip: object
+    wall: object
+    friction: object
+    faults: object
+    external: object
+
+
+def _add_physics(builder, scenario, state_port, joint_inertias) -> _Physics:
+    """The tip kinematics, the wall (behind the scenario's environment
+    faults) and the joint friction of one arm, wired to its ``state_port``."""
+    check_friction_stability(scenario.joint_friction, joint_inertias, scenario.arm.time_step)
+    tip = builder.AddNamedSystem("tip_kinematics", TipKinematics(_kinematics_model()))
     builder.Connect(state_port, tip.GetInputPort("plant_state"))
     faults = scenario.faults
     wall = builder.AddNamedSystem("wall", CompliantWall(
@@ -219,8 +340,43 @@ def _add_arm_and_wall(builder, scenario):
     external = builder.AddNamedSystem("external_torque", Adder(2, 3))
     builder.Connect(tip.GetOutputPort("generalized_force"), external.get_input_port(0))
     builder.Connect(friction.GetOutputPort("torque"), external.get_input_port(1))
-    builder.Connect(external.get_output_port(), plant.get_applied_generalized_force_input_port())
-    return plant, scene_graph, tip, wall, friction, _FaultPorts(clock, active)
+    return _Physics(tip, wall, friction, _FaultPorts(clock, active), external.get_output_port())
+
+
+_KINEMATICS_MODEL = []
+
+
+def _kinematics_model():
+    """The arm's standalone model, against which the tip kinematics' closed
+    forms are checked (made once)."""
+    if not _KINEMATICS_MODEL:
+        _KINEMATICS_MODEL.append(MakeArmModel())
+    return _KINEMATICS_MODEL[0]
+
+
+def _apply_to_arms(builder, plant, ports):
+    """Feeds each environment's joint torque port (3) into the plant's
+    applied generalized force, in the arms' order (in an ensemble, each
+    through its :func:`FiniteGuard`)."""
+    if len(ports) == 1:
+        builder.Connect(ports[0], plant.get_applied_generalized_force_input_port())
+        return
+    mux = builder.AddNamedSystem("external_torque_arms", Multiplexer([3] * len(ports)))
+    for i, port in enumerate(ports):
+        guard = builder.AddNamedSystem(f"external_torque_guard@{i}", FiniteGuard(3))
+        builder.Connect(port, guard.get_input_port())
+        builder.Connect(guard.get_output_port(), mux.get_input_port(i))
+    builder.Connect(mux.get_output_port(), plant.get_applied_generalized_force_input_port())
+
+
+def FiniteGuard(size):
+    """u where it is finite, else 0, element by element: in an ensemble,
+    between each environment and the plant, whose every input must be
+    finite (the plant stops the whole simulation on a NaN), so that one
+    diverging environment does not stop the others. The runner reports that
+    environment as diverged from its logs. Stateless, in C++."""
+    u = [Variable(f"u{i}") for i in range(size)]
+    return SymbolicVectorSystem(input=u, output=[if_then_else(abs(x) < np.inf, x, 0.0) for x in u])
 
 
 @dc.dataclass
@@ -238,10 +394,12 @@ def MakeFloorDiagram(scenario: Scenario, joint_torque=(4.0, 0.0, 0.0)):
     ``contact_force_true``."""
     scenario.validate()
     builder = DiagramBuilder()
-    plant, _, _, wall, _, _ = _add_arm_and_wall(builder, scenario)
+    plant, _, states, _, inertias = _add_arms(builder, [scenario])
+    physics = _add_physics(builder, scenario, states[0], inertias[0])
+    _apply_to_arms(builder, plant, [physics.external])
     torque = builder.AddNamedSystem("joint_torque", ConstantVectorSource(list(joint_torque)))
     builder.Connect(torque.get_output_port(), plant.get_actuation_input_port())
-    builder.ExportOutput(wall.GetOutputPort("contact_force"), "contact_force_true")
+    builder.ExportOutput(physics.wall.GetOutputPort("contact_force"), "contact_force_true")
     diagram = builder.Build()
     diagram.set_name("floor_diagram")
     return diagram
@@ -257,22 +415,89 @@ def MakeContactDiagram(scenario: Scenario) -> ContactStation:
     ScenarioError for settings that cannot run (e.g. friction regularization
     unstable at the plant step). Its noise is seeded by :func:`SeedNoise`.
     """
-    scenario.validate()
+    return MakeEnsembleDiagram([scenario])
+
+
+def MakeEnsembleDiagram(scenarios) -> ContactStation:
+    """N environments in one station: one plant holding N arms, and each
+    role of :func:`MakeContactDiagram` serving all N, every output port
+    carrying an arm axis (environment i's values at ``[k i, k (i + 1))``,
+    k its size in ``signals``).
+
+    Each environment has its own scenario (wall, noise seed, gains, faults,
+    ...); they must share a structure (the plant step, the controller and
+    what its plug-in's law switches on). A role whose system serves N
+    environments at once (the force sensor, the force reference, and a
+    controller whose plug-in declares ``ensemble``) is one system; any other
+    is one system per environment (named ``<name>@<i>``), Drake's C++
+    systems included. Environment i gives, bit for bit, the logs of
+    :func:`MakeContactDiagram` of its scenario, seeded alike
+    (:func:`SeedNoise`). One scenario gives the one-environment station."""
+    scenarios = list(scenarios)
+    if not scenarios:
+        raise ScenarioError("an ensemble needs at least one scenario")
+    for scenario in scenarios:
+        scenario.validate()
+    _check_structure(scenarios)
+    count = len(scenarios)
     builder = DiagramBuilder()
-    plant, scene_graph, tip, wall, friction, faults = _add_arm_and_wall(builder, scenario)
-    sensing = _add_sensing(builder, scenario, plant, tip, wall, faults)
-    control = _add_control(builder, scenario, plant, sensing.measured, faults)
-    signals = _Signals(builder)
-    _export_physics(signals.export, plant, tip, wall)
-    _export_sensing_and_control(signals.export, scenario, sensing, control, friction)
-    _export_faults(signals.export, builder, scenario, faults)
-    signals.export("query_object", scene_graph.get_query_output_port(),
-                   "the SceneGraph's query object (for visualizers)", log=False)
-    station = ContactStation(scenario, signals.signals)
+    envs = [_Env(builder, i, count) for i in range(count)]
+    plant, scene_graph, states, actuation, inertias = _add_arms(builder, scenarios)
+    physics = [_add_physics(env, s, state, m)
+               for env, s, state, m in zip(envs, scenarios, states, inertias)]
+    _apply_to_arms(builder, plant, [p.external for p in physics])
+    sensing = _add_sensing(builder, envs, scenarios, states, physics)
+    control = _add_control(builder, envs, scenarios, states, sensing, physics, actuation)
+    exports = []
+    for env, scenario, state, p, sensed, controlled in zip(
+            envs, scenarios, states, physics, sensing, control):
+        signals = _Signals()
+        _export_physics(signals.export, state, p.tip, p.wall)
+        _export_sensing_and_control(signals.export, scenario, sensed, controlled, p.friction)
+        _export_faults(signals.export, env, scenario, p.faults)
+        exports.append(signals.exported)
+    signals = _export_envs(builder, exports)
+    builder.ExportOutput(scene_graph.get_query_output_port(), "query_object")
+    signals["query_object"] = Signal(0, "the SceneGraph's query object (for visualizers)", {})
+    station = ContactStation(scenarios, signals)
     builder.BuildInto(station)
     station.set_name("station")
     _check_unique_noise_names(station)
     return station
+
+
+def _check_structure(scenarios):
+    """Raises ScenarioError unless the scenarios can share one station: the
+    same plant step and controller."""
+    first = scenarios[0]
+    for i, scenario in enumerate(scenarios[1:], 1):
+        for field, value, base in (
+                ("arm.time_step", scenario.arm.time_step, first.arm.time_step),
+                ("controller.name", scenario.controller.name, first.controller.name)):
+            if value != base:
+                raise ScenarioError(
+                    f"{field} = {value!r} in environment {i} is out of range: an ensemble's "
+                    f"environments share it ({base!r} in environment 0)")
+
+
+def _export_envs(builder, exports):
+    """Exports each signal of the environments' ``exports`` (per
+    environment {name: (port, meaning, log_as)}) as one port carrying all of
+    them; returns the station's ``signals``."""
+    signals = {}
+    for name, (port, meaning, log_as) in exports[0].items():
+        ports = [exported[name][0] for exported in exports if name in exported]
+        if len(ports) != len(exports):
+            raise ScenarioError(f"the ensemble's environments differ in the signal '{name}': "
+                                "they must share a structure")
+        if len(ports) > 1:
+            mux = builder.AddNamedSystem(f"{name}_envs", Multiplexer([port.size()] * len(ports)))
+            for i, each in enumerate(ports):
+                builder.Connect(each, mux.get_input_port(i))
+            port = mux.get_output_port()
+        builder.ExportOutput(port, name)
+        signals[name] = Signal(ports[0].size(), meaning, dict(log_as))
+    return signals
 
 
 @dc.dataclass
@@ -285,110 +510,136 @@ class _Sensing:
     measured: MeasuredSignals
 
 
-def _add_sensing(builder, scenario, plant, tip, wall, faults) -> _Sensing:
+def _add_sensing(builder, envs, scenarios, states, physics) -> list:
     """The encoders and the kinematic estimator, the force sensor and the
-    DSP, with the faults on their signals."""
-    state_port = plant.get_state_output_port()
-    encoders = AddEncoders(builder, scenario.encoders, scenario.arm.initial_positions)
-    builder.Connect(state_port, encoders.GetInputPort("plant_state"))
-    estimator = AddKinematicEstimator(
-        builder, MakeArmModel(), scenario.estimator,
-        encoder_reading(scenario.encoders, scenario.arm.initial_positions))
-    counted = encoders.GetOutputPort("joint_positions_measured")
-    if faults.clock is not None:
-        counted, active = ChainFaults(
-            builder, scenario.faults, "encoders", counted, 3, faults.clock,
-            counts_per_revolution=scenario.encoders.counts_per_revolution)
-        faults.active |= active
-    builder.Connect(counted, estimator.GetInputPort("joint_positions_measured"))
+    DSP of every environment, with the faults on their signals."""
+    count = len(scenarios)
+    counted, estimators = [], []
+    for env, scenario, state, p in zip(envs, scenarios, states, physics):
+        encoders = AddEncoders(env, scenario.encoders, scenario.arm.initial_positions)
+        env.Connect(state, encoders.GetInputPort("plant_state"))
+        estimator = AddKinematicEstimator(
+            env, _kinematics_model(), scenario.estimator,
+            encoder_reading(scenario.encoders, scenario.arm.initial_positions))
+        port = encoders.GetOutputPort("joint_positions_measured")
+        if p.faults.clock is not None:
+            port, active = ChainFaults(
+                env, scenario.faults, "encoders", port, 3, p.faults.clock,
+                counts_per_revolution=scenario.encoders.counts_per_revolution)
+            p.faults.active |= active
+        env.Connect(port, estimator.GetInputPort("joint_positions_measured"))
+        counted.append(port)
+        estimators.append(estimator)
 
-    sensor = AddForceSensor(builder, scenario.force_sensor)
-    builder.Connect(wall.GetOutputPort("force_on_tip"), sensor.GetInputPort("wrench"))
-    builder.Connect(tip.GetOutputPort("tip_state"), sensor.GetInputPort("tip_state"))
-    dsp = AddDspForceInput(builder, scenario.dsp, scenario.force_sensor.fine_period,
-                           sensor.GetOutputPort("voltage_frame").size(), faults=scenario.faults)
-    if dsp.HasInputPort("contact_time"):
-        builder.Connect(faults.clock, dsp.GetInputPort("contact_time"))
-        faults.active |= {i: dsp.GetOutputPort(f"fault_active_{i}")
-                          for i, f in enumerate(scenario.faults) if f.signal == "force"}
-    builder.Connect(sensor.GetOutputPort("voltage"), dsp.GetInputPort("voltage"))
-    if dsp.HasInputPort("voltage_frame"):
-        builder.Connect(sensor.GetOutputPort("voltage_frame"), dsp.GetInputPort("voltage_frame"))
-
-    blocks = {"estimator": estimator, "dsp": dsp}
-    measured = MeasuredSignals(**{name: blocks[m.source].GetOutputPort(m.port)
-                                  for name, m in MEASUREMENTS.items()})
-    return _Sensing(counted, dsp, measured)
+    configs = [s.force_sensor for s in scenarios]
+    if count > 1 and getattr(AddForceSensor, "ensemble", False):
+        views = _role_views(builder, "force_sensor", count, AddForceSensor(builder, configs))
+    else:
+        views = [(_input_ports(sensor), _vector_outputs(sensor))
+                 for sensor in (AddForceSensor(env, c) for env, c in zip(envs, configs))]
+    out = []
+    for env, scenario, p, (sensor_in, sensor_out), port, estimator in zip(
+            envs, scenarios, physics, views, counted, estimators):
+        env.Connect(p.wall.GetOutputPort("force_on_tip"), sensor_in["wrench"])
+        env.Connect(p.tip.GetOutputPort("tip_state"), sensor_in["tip_state"])
+        faults = p.faults
+        dsp = AddDspForceInput(env, scenario.dsp, scenario.force_sensor.fine_period,
+                               sensor_out["voltage_frame"].size(), faults=scenario.faults)
+        if dsp.HasInputPort("contact_time"):
+            env.Connect(faults.clock, dsp.GetInputPort("contact_time"))
+            faults.active |= {i: dsp.GetOutputPort(f"fault_active_{i}")
+                              for i, f in enumerate(scenario.faults) if f.signal == "force"}
+        env.Connect(sensor_out["voltage"], dsp.GetInputPort("voltage"))
+        if dsp.HasInputPort("voltage_frame"):
+            env.Connect(sensor_out["voltage_frame"], dsp.GetInputPort("voltage_frame"))
+        blocks = {"estimator": estimator, "dsp": dsp}
+        measured = MeasuredSignals(**{name: blocks[m.source].GetOutputPort(m.port)
+                                      for name, m in MEASUREMENTS.items()})
+        out.append(_Sensing(port, dsp, measured))
+    return out
 
 
 @dc.dataclass
 class _Control:
-    """The control side's systems and ports: the controller (its system and
-    its output ports by name), the identifiers and the supervisor (None when
-    absent), the torque the controller commands and the one the plant gets."""
+    """One environment's control side: the controller's output ports by
+    name, its identifiers and supervisor (None when absent), the torque the
+    controller commands and the one the plant gets, and whether the
+    station's contact detector (not the controller) says the mode."""
 
-    system: object
     outputs: dict
     identifiers: object
     supervisor: object
     torque: object
     applied: object
+    detected: bool
 
 
-def _add_control(builder, scenario, plant, measured, faults) -> _Control:
+def _add_control(builder, envs, scenarios, states, sensing, physics, actuation) -> list:
     """The controller, the identifiers, the safety supervisor, the torque
     limits, any drive faults, the motors and (for a plant step under 1 ms)
-    the DAC's hold, wired from ``measured`` to the plant's actuation."""
-    controller_system, controller = _add_controller(builder, scenario, plant, measured)
-    torque = controller["joint_torque_commanded"]
-    identifiers = None
-    if scenario.identifiers:
-        identifiers = AddIdentifiers(builder, scenario)
-        for name, port in measured.items():
-            if identifiers.HasInputPort(MEASUREMENTS[name].role):
-                builder.Connect(port, identifiers.GetInputPort(MEASUREMENTS[name].role))
-        if identifiers.HasInputPort("contact_info"):
-            builder.Connect(controller["contact_info"],
-                            identifiers.GetInputPort("contact_info"))
-    if controller_system.HasInputPort("impedance_estimate"):
-        source = scenario.controller.impedance_source_name()
-        if not source:
-            raise ScenarioError(
-                f"controller '{scenario.controller.name}' reads impedance_estimate: name its "
-                "identifier in controller.impedance_source")
-        builder.Connect(identifiers.GetOutputPort(f"impedance_{source}"),
-                        controller_system.GetInputPort("impedance_estimate"))
-    saturation = AddTorqueSaturation(builder, scenario.torque_limits)
-    motors = builder.AddNamedSystem(
-        "motors", MatrixGain(np.diag(scenario.arm.motor_torque_scale)))
-    supervisor = None
-    if scenario.safety.enabled:
-        supervisor = builder.AddNamedSystem("safety_supervisor", SafetySupervisor(scenario.safety))
-        builder.Connect(torque, supervisor.GetInputPort("joint_torque_commanded"))
-        for name, port in measured.items():
-            if supervisor.HasInputPort(MEASUREMENTS[name].role):
-                builder.Connect(port, supervisor.GetInputPort(MEASUREMENTS[name].role))
-        builder.Connect(supervisor.GetOutputPort("joint_torque"), saturation.get_input_port())
-    else:
-        builder.Connect(torque, saturation.get_input_port())
-    drive = saturation.get_output_port()
-    if faults.clock is not None:
-        drive, active = ChainFaults(builder, scenario.faults, "drive", drive, 3, faults.clock)
-        faults.active |= active
-    builder.Connect(drive, motors.get_input_port())
-    applied = motors.get_output_port()
-    if scenario.arm.time_step < CONTROL_PERIOD:
-        # Between samples the plant steps with the torque of the last sample.
-        dac = builder.AddNamedSystem("dac", SampleHold(CONTROL_PERIOD, 3, scenario.arm.time_step))
-        builder.Connect(applied, dac.get_input_port())
-        applied = dac.get_output_port()
-    builder.Connect(applied, plant.get_actuation_input_port())
-    return _Control(controller_system, controller, identifiers, supervisor, torque, applied)
+    the DAC's hold of every environment, wired from its measured signals to
+    its arm's actuation."""
+    measured = [s.measured for s in sensing]
+    systems, inputs, outputs = _add_controller(builder, scenarios, states, measured)
+    detected = not systems[0].HasOutputPort("contact_info")
+    out = []
+    for env, scenario, own, controller, m, p, arm in zip(
+            envs, scenarios, inputs, outputs, measured, physics, actuation):
+        torque = controller["joint_torque_commanded"]
+        identifiers = None
+        if scenario.identifiers:
+            identifiers = AddIdentifiers(env, scenario)
+            for name, port in m.items():
+                if identifiers.HasInputPort(MEASUREMENTS[name].role):
+                    env.Connect(port, identifiers.GetInputPort(MEASUREMENTS[name].role))
+            if identifiers.HasInputPort("contact_info"):
+                env.Connect(controller["contact_info"], identifiers.GetInputPort("contact_info"))
+        if "impedance_estimate" in own:
+            source = scenario.controller.impedance_source_name()
+            if not source:
+                raise ScenarioError(
+                    f"controller '{scenario.controller.name}' reads impedance_estimate: name "
+                    "its identifier in controller.impedance_source")
+            env.Connect(identifiers.GetOutputPort(f"impedance_{source}"),
+                        own["impedance_estimate"])
+        saturation = AddTorqueSaturation(env, scenario.torque_limits)
+        motors = env.AddNamedSystem(
+            "motors", MatrixGain(np.diag(scenario.arm.motor_torque_scale)))
+        supervisor = None
+        if scenario.safety.enabled:
+            supervisor = env.AddNamedSystem("safety_supervisor",
+                                            SafetySupervisor(scenario.safety))
+            env.Connect(torque, supervisor.GetInputPort("joint_torque_commanded"))
+            for name, port in m.items():
+                if supervisor.HasInputPort(MEASUREMENTS[name].role):
+                    env.Connect(port, supervisor.GetInputPort(MEASUREMENTS[name].role))
+            env.Connect(supervisor.GetOutputPort("joint_torque"), saturation.get_input_port())
+        else:
+            env.Connect(torque, saturation.get_input_port())
+        drive = saturation.get_output_port()
+        if p.faults.clock is not None:
+            drive, active = ChainFaults(env, scenario.faults, "drive", drive, 3, p.faults.clock)
+            p.faults.active |= active
+        env.Connect(drive, motors.get_input_port())
+        applied = motors.get_output_port()
+        if scenario.arm.time_step < CONTROL_PERIOD:
+            # Between samples the plant steps with the torque of the last sample.
+            dac = env.AddNamedSystem("dac", SampleHold(CONTROL_PERIOD, 3, scenario.arm.time_step))
+            env.Connect(applied, dac.get_input_port())
+            applied = dac.get_output_port()
+        if len(scenarios) == 1:
+            env.Connect(applied, arm)
+        else:
+            guard = env.AddNamedSystem("actuation_guard", FiniteGuard(3))
+            env.Connect(applied, guard.get_input_port())
+            env.Connect(guard.get_output_port(), arm)
+        out.append(_Control(controller, identifiers, supervisor, torque, applied, detected))
+    return out
 
 
-def _export_physics(export, plant, tip, wall):
+def _export_physics(export, state, tip, wall):
     """The true signals: the arm's state, the tip's, the wall's."""
-    export("joint_state_true", plant.get_state_output_port(), "arm [q; v] (rad, rad/s)",
+    export("joint_state_true", state, "arm [q; v] (rad, rad/s)",
            log_as={"joint_positions_true": slice(0, 3), "joint_velocities_true": slice(3, 6)})
     export("tip_state_true", tip.GetOutputPort("tip_state"),
            "tip [x, y, phi, xdot, ydot, phidot], world (m, rad, /s)",
@@ -437,7 +688,7 @@ def _export_measured(export, sensing):
 
 def _export_controller(export, scenario, control):
     controller, identifiers = control.outputs, control.identifiers
-    detected = not control.system.HasOutputPort("contact_info")
+    detected = control.detected
     declared = controller_declaration(scenario.controller.name)
     signals = CONTROLLER_SIGNALS | declared.signals
     for name, meaning in signals.items():
@@ -473,7 +724,6 @@ def _export_faults(export, builder, scenario, faults):
     export("fault_contact_time", faults.clock,
            "first sample with a true contact force > 5 N, the faults' clock (s; -1 before)")
 
-
 def control_steps_per_plant_step(scenario: Scenario) -> int:
     """How many plant steps make one 1 ms control period."""
     return int(round(CONTROL_PERIOD / scenario.arm.time_step))
@@ -494,10 +744,25 @@ def leaf_systems(diagram):
 _NOISE_KEY_PREFIX = "::run::station::"
 
 
+def _noise_sources(station):
+    """(environment index, seed key name, source) of every RandomSource of
+    ``station``: the environment is the ``@<i>`` in its path (0 without
+    one), the key its name without it."""
+    for system in leaf_systems(station):
+        if isinstance(system, RandomSource):
+            path = system.GetSystemPathname()
+            found = _ENV_TAG.findall(path)
+            yield (int(found[-1]) if found else 0, _ENV_TAG.sub("", system.get_name()), system)
+
+
+_ENV_TAG = re.compile(r"@(\d+)")
+
+
 def _check_unique_noise_names(station):
-    names = [s.get_name() for s in leaf_systems(station) if isinstance(s, RandomSource)]
-    if len(names) != len(set(names)):
-        raise ValueError(f"the station's noise sources need unique names (seeded by name): {names}")
+    keys = [(env, key) for env, key, _ in _noise_sources(station)]
+    if len(keys) != len(set(keys)):
+        raise ValueError("the station's noise sources need unique names in each environment "
+                         f"(seeded by name): {keys}")
 
 
 def SeedNoise(diagram, context, seed=None):
@@ -505,24 +770,25 @@ def SeedNoise(diagram, context, seed=None):
     ``diagram`` (the root diagram of ``context``, or a station itself).
 
     Each station's systems get their random state from ``seed`` (default:
-    its scenario's ``simulation.seed``), and each RandomSource then its own
-    generator, seeded from that seed and the source's name, so the noise is
+    its scenario's ``simulation.seed``; in an ensemble, each environment's),
+    and each RandomSource then its own generator, seeded from that seed and
+    the source's name (without its environment's ``@<i>``), so the noise is
     the same whatever else the diagram holds, however the outer diagram and
-    the station are named, and whatever controller or identifier is wired
-    in. Systems outside the stations are not touched."""
+    the station are named, whatever controller or identifier is wired in,
+    and whether the environment runs alone or in an ensemble. Systems
+    outside the stations are not touched."""
     stations = [diagram] if isinstance(diagram, ContactStation) else list(_stations(diagram))
     if not stations:
         raise ValueError(f"'{diagram.get_name()}' holds no ContactStation to seed")
     for station in stations:
-        station_seed = station.scenario.simulation.seed if seed is None else int(seed)
+        seeds = [s.simulation.seed if seed is None else int(seed) for s in station.scenarios]
         station_context = station.GetMyMutableContextFromRoot(context)
-        station.SetRandomContext(station_context, RandomGenerator(station_seed))
-        for system in leaf_systems(station):
-            if isinstance(system, RandomSource):
-                key = zlib.crc32((_NOISE_KEY_PREFIX + system.get_name()).encode())
-                system.SetRandomContext(
-                    system.GetMyMutableContextFromRoot(context),
-                    RandomGenerator((station_seed * 1_000_003 + key) % 2**31))
+        station.SetRandomContext(station_context, RandomGenerator(seeds[0]))
+        for env, name, system in _noise_sources(station):
+            key = zlib.crc32((_NOISE_KEY_PREFIX + name).encode())
+            system.SetRandomContext(
+                system.GetMyMutableContextFromRoot(context),
+                RandomGenerator((seeds[env] * 1_000_003 + key) % 2**31))
 
 
 def _stations(diagram):

@@ -136,6 +136,12 @@ class Declaration:
     contender: bool = True
     # An identifier: its options also carry the run's ``seed``.
     seeded: bool = False
+    # A controller: its factory also takes a list of N options mappings
+    # (one per environment of an ensemble, sharing a structure) and returns
+    # one system serving all N, every port N times its size, environment
+    # i's values at [k i, k (i + 1)) (drake_contact.diagram.MakeEnsembleDiagram).
+    # Without it an ensemble runs one system per environment.
+    ensemble: bool = False
 
 
 def declare(**fields):
@@ -257,7 +263,8 @@ def _declaration(factory) -> Declaration:
 def _build(found, kind, name, options, field):
     factory, where = _load(found, kind, name, field)
     try:
-        system = factory(dict(options))
+        system = factory([dict(o) for o in options] if isinstance(options, list)
+                         else dict(options))
     except ScenarioError:
         raise
     except Exception as e:
@@ -268,15 +275,16 @@ def _build(found, kind, name, options, field):
     return system, where
 
 
-def MakeController(name: str, options: dict, *, prefix="controller") -> System:
+def MakeController(name: str, options, *, prefix="controller", count=1) -> System:
     """Builds the installed controller ``name`` from ``options`` and checks
     its ports against :func:`controller_inputs` and
     :data:`CONTROLLER_REQUIRED_OUTPUTS`. Raises ScenarioError naming the
     plug-in if it is not installed, fails to load or build, or does not fit
-    the station."""
+    the station. With a list of ``count`` options mappings (a plug-in that
+    declares ``ensemble``), one system serving ``count`` environments."""
     system, where = _build(installed_controllers(), "controller", name, options,
                            f"{prefix}.name")
-    check_controller_ports(system, where)
+    check_controller_ports(system, where, count)
     return system
 
 
@@ -291,13 +299,14 @@ def MakeIdentifier(kind: str, options: dict, *, prefix="identifiers[0]") -> Syst
     return system
 
 
-def check_controller_ports(system: System, where: str):
+def check_controller_ports(system: System, where: str, count=1):
     """Raises ScenarioError unless every input of ``system`` is one the
-    station provides, at its size, and its required outputs exist."""
-    _check_ports(system, where, controller_inputs(), CONTROLLER_REQUIRED_OUTPUTS)
+    station provides, at its size (times ``count``, the environments it
+    serves), and its required outputs exist."""
+    _check_ports(system, where, controller_inputs(), CONTROLLER_REQUIRED_OUTPUTS, count)
 
 
-def _check_ports(system: System, where: str, inputs: dict, outputs: dict):
+def _check_ports(system: System, where: str, inputs: dict, outputs: dict, count=1):
     renamed = {m.role: name for name, m in MEASUREMENTS.items() if m.role != name}
     for i in range(system.num_input_ports()):
         port = system.get_input_port(i)
@@ -310,10 +319,11 @@ def _check_ports(system: System, where: str, inputs: dict, outputs: dict):
             raise ScenarioError(
                 f"{where}: input port '{name}' is not a station signal: the station provides "
                 f"{', '.join(inputs)}")
-        size = inputs[name][0]
+        size = inputs[name][0] * count
         if port.get_data_type() != PortDataType.kVectorValued or port.size() != size:
             raise ScenarioError(f"{where}: input port '{name}' must be a vector of size {size}")
     for name, (size, meaning) in outputs.items():
+        size *= count
         if not system.HasOutputPort(name):
             raise ScenarioError(f"{where} has no output port '{name}' ({size}: {meaning})")
         port = system.GetOutputPort(name)

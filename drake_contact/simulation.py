@@ -25,7 +25,8 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput, Multiplexer, VectorLogSink
 
-from drake_contact.diagram import ContactStation, MakeContactDiagram, SeedNoise
+from drake_contact.diagram import (
+    ContactStation, MakeContactDiagram, MakeEnsembleDiagram, SeedNoise)
 from drake_contact.errors import ScenarioError, SimulationDiverged
 from drake_contact.plant.arm import CONTROL_PERIOD, RATIO_TOLERANCE
 from drake_contact.scenario import Scenario
@@ -250,16 +251,24 @@ class SignalLoggers:
                 f"columns) would need {duration * bytes_per_s / 1e9:.3g} GB on disk; "
                 f"{folder} has room for at most {limit_s:.0f} s")
 
-    def latest(self, name, samples):
-        """(times, (samples, size) array) of signal ``name``'s last
-        ``samples`` drained (with a spool, at most those since the last
-        flush)."""
+    def latest(self, name, samples, env=0):
+        """(times, (samples, size) array) of environment ``env``'s signal
+        ``name``, its last ``samples`` drained (with a spool, at most those
+        since the last flush)."""
         start = max(self._n - samples, 0)
-        return self._times[start:self._n], self._buffer[start:self._n, self.columns[name]]
+        return self._times[start:self._n], self._buffer[start:self._n, self.env_columns(name, env)]
 
-    def collect(self, context) -> Mapping:
-        """The log at ``context``: ``t`` and every log key (a dict of views
-        of the array; with a spool, a :class:`SpooledLog`)."""
+    def env_columns(self, name, env):
+        """The columns of environment ``env``'s signal ``name`` in the sink
+        (an ensemble's signal holds its environments side by side)."""
+        size = self.station.signals[name].size
+        start = self.columns[name].start + env * size
+        return slice(start, start + size)
+
+    def collect(self, context, env=0) -> Mapping:
+        """The log at ``context`` of environment ``env``: ``t`` and every
+        log key (a dict of views of the array; with a spool, a
+        :class:`SpooledLog`)."""
         self.drain(context)
         if self.spool is not None:
             self.flush()
@@ -268,8 +277,8 @@ class SignalLoggers:
         else:
             n = self._n
             out = {"t": self._times[:n]}
-            for name, columns in self.columns.items():
-                signal = self._buffer[:n, columns]
+            for name in self.columns:
+                signal = self._buffer[:n, self.env_columns(name, env)]
                 for key, part in self.station.signals[name].log_as.items():
                     out[key] = signal[:, part]
         add_stiffness_ratio(out)
@@ -281,7 +290,7 @@ def AddSignalLoggers(builder: DiagramBuilder, station: ContactStation) -> Signal
     ``log_signals_mux``) of every logged signal of ``station``, which must
     be in ``builder``; returns it."""
     names = [name for name, signal in station.signals.items() if signal.log_as]
-    sizes = [station.signals[name].size for name in names]
+    sizes = [station.signals[name].size * station.num_envs for name in names]
     mux = builder.AddNamedSystem("log_signals_mux", Multiplexer(sizes))
     for index, name in enumerate(names):
         builder.Connect(station.GetOutputPort(name), mux.get_input_port(index))
@@ -408,13 +417,95 @@ def simulate_scenario(scenario: Scenario, *, progress=None, meshcat=None, record
                     meshcat=meshcat, record=record, live=live)
 
 
-def _check_divergence(loggers: SignalLoggers, force_limit):
-    """Raises SimulationDiverged at the first bad sample of the last chunk."""
+def MakeEnsembleRunDiagram(scenarios):
+    """The ensemble station of ``scenarios`` (:func:`MakeEnsembleDiagram`)
+    with its loggers. Returns (diagram, loggers)."""
+    builder = DiagramBuilder()
+    station = builder.AddSystem(MakeEnsembleDiagram(scenarios))
+    loggers = AddSignalLoggers(builder, station)
+    diagram = builder.Build()
+    diagram.set_name("run")
+    return diagram, loggers
+
+
+def simulate_ensemble(scenarios, *, progress=None) -> list:
+    """Simulates the environments of ``scenarios`` in one ensemble diagram,
+    each seeded with its own ``simulation.seed``, for the longest
+    ``simulation.duration``; returns a RunResult per environment, its log
+    cut at its own duration: bit for bit the log :func:`simulate_scenario`
+    gives alone.
+
+    An environment that diverges (a non-finite state, or a contact force
+    above its ``simulation.force_limit``) is reported as diverged at its
+    first bad sample, its log kept up to that sample, while the others run
+    on. ``progress(t, duration, wall_s)`` is called after every chunk of
+    CHUNK_S. ``wall_s`` of each result is the ensemble's wall time divided
+    by the number of environments."""
+    diagram, loggers = MakeEnsembleRunDiagram(scenarios)
+    duration = max(s.simulation.duration for s in scenarios)
+    check_logs_fit(loggers, duration)
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    SeedNoise(diagram, context)
+    loggers.reserve(int(round(duration / CONTROL_PERIOD)) + 1)
+    running = set(range(len(scenarios)))
+    stopped = {}
+    start = time.perf_counter()
+    try:
+        simulator.Initialize()
+        chunks = int(np.ceil(duration / CHUNK_S - RATIO_TOLERANCE))
+        for k in range(1, chunks + 1):
+            t = duration if k == chunks else k * CHUNK_S
+            simulator.AdvanceTo(t)
+            loggers.drain(context)
+            for env in sorted(running):
+                try:
+                    _check_divergence(loggers, scenarios[env].simulation.force_limit, env)
+                except SimulationDiverged as e:
+                    stopped[env] = ("diverged", str(e))
+                    running.discard(env)
+            if progress is not None:
+                progress(t, duration, time.perf_counter() - start)
+    except KeyboardInterrupt:
+        for env in running:
+            stopped[env] = ("interrupted", f"interrupted at t = {context.get_time():.3f} s")
+    except RuntimeError as e:
+        for env in running:
+            stopped[env] = ("diverged", f"diverged at t = {context.get_time():.3f} s: "
+                                        f"{str(e).splitlines()[0]}")
+    wall_s = (time.perf_counter() - start) / len(scenarios)
+    results = []
+    for env, scenario in enumerate(scenarios):
+        log = loggers.collect(context, env)
+        samples = int(round(scenario.simulation.duration / CONTROL_PERIOD)) + 1
+        log = {key: value[:samples] for key, value in log.items()}
+        status, message = stopped.get(env, ("completed", ""))
+        if status == "diverged":
+            log = _truncate_at_divergence(log, scenario.simulation.force_limit)
+        metrics = compute_metrics(scenario, log, wall_s)
+        metrics["status"] = status
+        if "ended_safe_log" in metrics:
+            metrics["ended_safe"] = status == "completed" and metrics.pop("ended_safe_log")
+        if message:
+            metrics["message"] = message
+        results.append(RunResult(log=log, metrics=metrics, status=status, message=message,
+                                 wall_s=wall_s, simulator=simulator))
+    return results
+
+
+def _check_divergence(loggers: SignalLoggers, force_limit, env=0):
+    """Raises SimulationDiverged at the first bad sample of the last chunk
+    (of environment ``env``)."""
     chunk = int(round(CHUNK_S / CONTROL_PERIOD)) + 1
-    times, state = loggers.latest("joint_state_true", chunk)
+    times, state = loggers.latest("joint_state_true", chunk, env)
     state = state.T
-    force = loggers.latest("contact_force_true", chunk)[1][:, 0]
+    force = loggers.latest("contact_force_true", chunk, env)[1][:, 0]
     bad_state = ~np.all(np.isfinite(state), axis=0)
+    if loggers.station.num_envs > 1:
+        # An ensemble's plant gets 0 for a non-finite torque (FiniteGuard),
+        # where a run alone stops.
+        torque = loggers.latest("joint_torque_applied", chunk, env)[1].T
+        bad_state |= ~np.all(np.isfinite(torque), axis=0)
     bad_force = ~np.isfinite(force) | (force > force_limit)
     if bad_state.any() or bad_force.any():
         i = int(np.argmax(bad_state | bad_force))

@@ -10,6 +10,7 @@ import dataclasses as dc
 import numpy as np
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
+from pydrake.multibody.tree import ModelInstanceIndex
 from pydrake.systems.framework import DiagramBuilder
 
 from drake_contact.errors import ScenarioError
@@ -147,26 +148,56 @@ class ArmConfig:
                 f"{prefix}.initial_positions = {q0} is out of range: must be 3 finite angles in rad")
 
 
-def AddArmPlant(builder: DiagramBuilder, config: ArmConfig):
-    """Adds the arm (and a SceneGraph) to ``builder``.
+def AddArmPlant(builder: DiagramBuilder, config):
+    """Adds the arm (and a SceneGraph) to ``builder``; with a list of N
+    configs, one plant holding N arms (the model instances ``env<i>::``
+    of :func:`arm_instances`, in order), which must share their time step.
 
     Returns (plant, scene_graph). The plant is finalized and its default
-    state is q = ``config.initial_positions``, v = 0. Gravity points along -z, normal
-    to the plane of motion, so it produces no joint torque.
+    state is q = ``initial_positions``, v = 0 (each arm's own). Gravity
+    points along -z, normal to the plane of motion, so it produces no joint
+    torque. The arms do not touch one another: each one's state evolves as
+    it would in a plant of its own, bit for bit.
     """
+    configs = config if isinstance(config, (list, tuple)) else [config]
+    steps = {c.time_step for c in configs}
+    if len(steps) != 1:
+        raise ScenarioError(f"arm.time_step = {sorted(steps)}: the arms of one plant share "
+                            "their time step")
     plant, scene_graph = AddMultibodyPlant(
-        MultibodyPlantConfig(time_step=config.time_step, use_sampled_output_ports=False),
+        MultibodyPlantConfig(time_step=configs[0].time_step, use_sampled_output_ports=False),
         builder)
     plant.set_name("plant")
-    LoadArm(plant)
+    if len(configs) == 1:
+        LoadArm(plant)
+        plant.Finalize()
+        plant.SetDefaultPositions(np.asarray(configs[0].initial_positions, dtype=float))
+        return plant, scene_graph
+    instances = [LoadArm(plant, prefix=f"env{i}") for i in range(len(configs))]
     plant.Finalize()
-    plant.SetDefaultPositions(np.asarray(config.initial_positions, dtype=float))
+    for instance, c in zip(instances, configs):
+        plant.SetDefaultPositions(instance, np.asarray(c.initial_positions, dtype=float))
     return plant, scene_graph
 
 
-def LoadArm(plant):
-    """Parses the arm's URDF into an unfinalized plant; returns its instance."""
-    (instance,) = Parser(plant).AddModels(str(arm_urdf_path()))
+def arm_instances(plant):
+    """The arms' model instances of a plant :func:`AddArmPlant` made, in
+    the order of their environments."""
+    found = [ModelInstanceIndex(i) for i in range(plant.num_model_instances())
+             if plant.GetModelInstanceName(ModelInstanceIndex(i)).split("::")[-1] == MODEL_NAME]
+    return sorted(found, key=lambda i: _env_index(plant.GetModelInstanceName(i)))
+
+
+def _env_index(name):
+    head = name.split("::")[0]
+    return int(head[3:]) if head.startswith("env") else 0
+
+
+def LoadArm(plant, prefix=""):
+    """Parses the arm's URDF into an unfinalized plant (its model instance
+    named ``<prefix>::kiguchi_arm`` with a prefix); returns its instance."""
+    parser = Parser(plant, prefix) if prefix else Parser(plant)
+    (instance,) = parser.AddModels(str(arm_urdf_path()))
     return instance
 
 
