@@ -89,3 +89,24 @@ def test_two_points_with_one_name_are_refused(tmp_path):
 
     with pytest.raises(ValueError, match="two points share a name"):
         run_campaign(Twice(), tmp_path)
+
+
+def test_packed_points_write_the_logs_they_write_alone(tmp_path):
+    import numpy as np
+    from drake_contact.app.campaign import ensemble_packs
+    packed = run_campaign(Stiffness(), tmp_path / "packed", workers=1, ensemble=16)
+    alone = run_campaign(Stiffness(), tmp_path / "alone", workers=1, ensemble=1)
+    assert packed.tables["runs"] == alone.tables["runs"]
+    assert "ensemble of 3" in (tmp_path / "packed/runs/k5000/run.log").read_text()
+    for wall in ("k5000", "k7000", "k9000"):
+        with np.load(tmp_path / "packed/runs" / wall / "log.npz") as a, \
+                np.load(tmp_path / "alone/runs" / wall / "log.npz") as b:
+            assert a.files == b.files
+            for key in a.files:
+                np.testing.assert_array_equal(a[key], b[key], err_msg=f"{wall} {key}")
+    # Packs: points sharing a controller, an even share per worker; a point
+    # that does not load is alone.
+    points = [(p, tmp_path / p.name) for p in Stiffness().points()]
+    assert [[p.name for p, _ in pack] for pack in ensemble_packs(points, 16, workers=2)] == [
+        ["k5000", "k7000"], ["k9000"], ["bad"]]
+    assert [len(pack) for pack in ensemble_packs(points, 1, workers=1)] == [1, 1, 1, 1]

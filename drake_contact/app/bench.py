@@ -21,6 +21,7 @@ test (:class:`BenchResult` records the load average beside the numbers).
 """
 
 import cProfile
+import copy
 import dataclasses as dc
 import inspect
 import os
@@ -33,7 +34,8 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
-from drake_contact.simulation import MakeRunDiagram, simulate, simulate_scenario
+from drake_contact.simulation import (
+    MakeRunDiagram, simulate, simulate_ensemble, simulate_scenario)
 from drake_contact.diagram import MakeFloorDiagram, leaf_systems
 from drake_contact.errors import SimulationDiverged
 from drake_contact.plant.arm import AddArmPlant
@@ -223,6 +225,68 @@ def bench(scenario: Scenario, *, runs=2, scenario_runs=None, name=None) -> Bench
         scenario=timing("scenario", "full run, logging included", scenario_us, scenario_runs),
         load_average=tuple(os.getloadavg()),
         cpu_count=os.cpu_count() or 1)
+
+
+# --- Ensembles -------------------------------------------------------------------
+
+
+@dc.dataclass(frozen=True)
+class EnsembleTiming:
+    """One ensemble size's timing: µs per environment-step (one environment
+    advanced by one plant step) and the memory it took."""
+
+    size: int
+    us_per_env_step: float
+    # Resident memory the ensemble's build and run added to this process (MB).
+    memory_mb: float
+
+    @property
+    def env_steps_per_s(self) -> float:
+        return 1e6 / self.us_per_env_step
+
+
+def ensemble_scenarios(scenario: Scenario, size: int) -> list:
+    """``size`` copies of ``scenario`` with seeds 0, 1, ... (the
+    environments of a timed ensemble)."""
+    out = []
+    for seed in range(size):
+        each = copy.deepcopy(scenario)
+        each.simulation.seed = seed
+        out.append(each)
+    return out
+
+
+def time_ensemble(scenario: Scenario, size: int) -> EnsembleTiming:
+    """Times one :func:`simulate_ensemble` of ``size`` copies of
+    ``scenario`` (logging, divergence checks and metrics included). Raises
+    SimulationDiverged if an environment does not complete."""
+    before = _resident_mb()
+    scenarios = ensemble_scenarios(scenario, size)
+    start = time.perf_counter()
+    results = simulate_ensemble(scenarios)
+    wall = time.perf_counter() - start
+    for result in results:
+        _completed(result)
+    memory = _resident_mb() - before
+    del results
+    return EnsembleTiming(size, _us_per_step(wall, scenario) / size, memory)
+
+
+def _resident_mb() -> float:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+def format_ensembles(timings, single_us: float, name: str, duration_s: float) -> str:
+    """The table of ``drake-contact bench --ensemble``."""
+    lines = [f"{name}: ensembles of {duration_s:g} s simulated, against one run alone "
+             f"({single_us:.1f} us/step)",
+             f"{'N':>5} {'us per env-step':>16} {'env-steps/s':>12} {'speed-up':>9} "
+             f"{'memory (MB)':>12}"]
+    for t in timings:
+        lines.append(f"{t.size:5d} {t.us_per_env_step:16.1f} {t.env_steps_per_s:12.0f} "
+                     f"{single_us / t.us_per_env_step:9.2f} {t.memory_mb:12.0f}")
+    return "\n".join(lines)
 
 
 # --- Where the time goes -------------------------------------------------------

@@ -51,6 +51,7 @@ from pathlib import Path
 import numpy as np
 
 from drake_contact.app.campaign import (
+    DEFAULT_ENSEMBLE,
     Campaign, CampaignResult, Point, failure_message, finished_metrics, run_campaign, run_status)
 from drake_contact.errors import ScenarioError
 from drake_contact.scoring.metrics import SCORES
@@ -586,10 +587,11 @@ class BenchmarkCampaign(Campaign):
 
 
 def run_benchmark(out_dir, *, contenders=None, identifiers=None, suite="standard", workers=None,
-                  scheduler=None, progress=None) -> CampaignResult:
+                  scheduler=None, progress=None, ensemble=DEFAULT_ENSEMBLE) -> CampaignResult:
     """Runs the suite (the points not finished in ``out_dir`` before) and
     writes the leaderboard; ``identifiers`` ('all' or names) adds the
     identifiers' runs and board. The result's tables: ``runs``,
     ``leaderboard`` (and ``identifiers``, ``identifier_leaderboard``)."""
     return run_campaign(BenchmarkCampaign(suite, contenders, identifiers), out_dir,
-                        workers=workers, scheduler=scheduler, progress=progress)
+                        workers=workers, scheduler=scheduler, progress=progress,
+                        ensemble=ensemble)

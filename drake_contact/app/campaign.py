@@ -145,10 +145,60 @@ def run_point(point: Point, out_dir, batch="") -> dict:
     return timing
 
 
-def run_task(task, batch="") -> dict:
-    """Runs a task's ``(name, point, out_dir)`` triples one after the other;
-    returns {name: timing}."""
+def run_task(task, batch="", ensemble=False) -> dict:
+    """Runs a task's ``(name, point, out_dir)`` triples: one after the
+    other, or with ``ensemble`` as one ensemble (:func:`run_pack`); returns
+    {name: timing}."""
+    if ensemble and len(task) > 1:
+        return run_pack(task, batch)
     return {name: run_point(point, out_dir, batch) for name, point, out_dir in task}
+
+
+def run_pack(task, batch="") -> dict:
+    """Runs a task's points as one ensemble (on a worker): each point's
+    folder gets what :func:`run_point` writes, its log bit for bit the one
+    it gets alone; a point whose scenario does not load fails alone. If the
+    points cannot share an ensemble after all (ScenarioError while building
+    it), each runs alone. Returns {name: timing}."""
+    from drake_contact.app.runner import run_ensemble
+    from drake_contact.errors import ScenarioError
+    from drake_contact.scenario import load_scenario
+    if batch in _STOPPED:
+        return {name: {"started": 0.0, "finished": 0.0, "failure": None} for name, _, _ in task}
+    started = time.time()
+    loaded, timings = [], {}
+    for name, point, out_dir in task:
+        try:
+            loaded.append((name, point, out_dir, load_scenario(point.scenario, point.overrides,
+                                                               seed=point.seed)))
+        except Exception:  # noqa: BLE001 - run alone, it writes its failure
+            timings[name] = run_point(point, out_dir, batch)
+    if len(loaded) < 2:
+        return timings | {name: run_point(point, out_dir, batch)
+                          for name, point, out_dir, _ in loaded}
+    outs = [Path(out_dir) for _, _, out_dir, _ in loaded]
+    for out in outs:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "failure.json").unlink(missing_ok=True)
+    try:
+        results = run_ensemble([s for *_, s in loaded], outs, progress=_stop_check(batch),
+                               figures=[p.figures for _, p, _, _ in loaded],
+                               baselines=[p.baseline for _, p, _, _ in loaded])
+    except ScenarioError:
+        return timings | {name: run_point(point, out_dir, batch)
+                          for name, point, out_dir, _ in loaded}
+    finished = time.time()
+    size = len(loaded)
+    for (name, _, _, _), result, out in zip(loaded, results, outs):
+        timing = {"started": started, "finished": finished, "failure": None,
+                  "host": os.uname().nodename, "pid": os.getpid(), "ensemble": size}
+        (out / "task.json").write_text(json.dumps(timing) + "\n")
+        line = f"{result.status}: {result.message}".rstrip(": ")
+        (out / "run.log").write_text(
+            f"{line} ({finished - started:.1f} s for an ensemble of {size} on "
+            f"{timing['host']}, pid {timing['pid']})\n")
+        timings[name] = timing
+    return timings
 
 
 @dc.dataclass
@@ -165,13 +215,16 @@ class PointsRun:
 
 
 def run_points(points, *, workers=None, scheduler=None, progress=None,
-               points_per_task=1) -> PointsRun:
-    """Runs ``points`` (pairs ``(Point, out_dir)``) as tasks of up to
-    ``points_per_task`` points on a Dask cluster: a LocalCluster of
-    ``workers`` processes (default one per core) or the running cluster at
-    ``scheduler``. ``progress(done, failed, total, eta_s, name)`` is called
-    as each point finishes. Ctrl-C stops the batch (``interrupted``): the
-    running points write their logs, and what finished is kept."""
+               points_per_task=1, ensemble=1) -> PointsRun:
+    """Runs ``points`` (pairs ``(Point, out_dir)``) as tasks on a Dask
+    cluster: a LocalCluster of ``workers`` processes (default one per core)
+    or the running cluster at ``scheduler``. With ``ensemble`` > 1, the
+    points that can share an ensemble (:func:`ensemble_packs`) run as
+    ensembles of up to ``ensemble`` environments, one per task; else each
+    task runs up to ``points_per_task`` points one after the other.
+    ``progress(done, failed, total, eta_s, name)`` is called as each point
+    finishes. Ctrl-C stops the batch (``interrupted``): the running points
+    write their logs, and what finished is kept."""
     from distributed import Client, LocalCluster
 
     timings, interrupted, startup, n_workers = {}, False, 0.0, 0
@@ -197,8 +250,12 @@ def run_points(points, *, workers=None, scheduler=None, progress=None,
         startup = time.perf_counter() - start
         start = time.perf_counter()
         batch = uuid.uuid4().hex
-        futures = {client.submit(run_task, task, batch, key=f"task-{task[0][0]}-{batch}",
-                                 pure=False): task for task in tasks}
+        if ensemble > 1:
+            tasks = [[(point.name, point, str(out)) for point, out in pack]
+                     for pack in ensemble_packs(points, ensemble, n_workers)]
+        futures = {client.submit(run_task, task, batch, ensemble > 1,
+                                 key=f"task-{task[0][0]}-{batch}", pure=False): task
+                   for task in tasks}
         try:
             _gather(futures, timings, len(points), start, progress)
         except KeyboardInterrupt:
@@ -214,6 +271,38 @@ def run_points(points, *, workers=None, scheduler=None, progress=None,
             cluster.close()
     timings = {name: t for name, t in timings.items() if t["started"] or t["failure"]}
     return PointsRun(timings, interrupted, n_workers, startup, time.perf_counter() - start)
+
+
+#: Environments per ensemble in campaigns by default (``--ensemble``), and
+#: at most.
+DEFAULT_ENSEMBLE = 16
+MAX_ENSEMBLE = 256
+
+
+def ensemble_packs(points, size, workers=1) -> list:
+    """``points`` (pairs ``(Point, out_dir)``) in packs that run as one
+    ensemble each: points whose scenarios share a plant step, a controller
+    and a duration (an ensemble runs as long as its longest), in their order, at most ``size`` a pack and no more than
+    an even share of their group per worker (so that every worker gets
+    work). A point that records a playback, or whose scenario does not
+    load, is a pack of its own."""
+    from drake_contact.scenario import load_scenario
+    groups = {}
+    for point, out in points:
+        key = ("alone", point.name)
+        if not point.record:
+            try:
+                scenario = load_scenario(point.scenario, point.overrides, seed=point.seed)
+                key = (scenario.arm.time_step, scenario.controller.name,
+                       scenario.simulation.duration)
+            except Exception:  # noqa: BLE001 - its run writes the failure
+                pass
+        groups.setdefault(key, []).append((point, out))
+    packs = []
+    for group in groups.values():
+        share = max(1, min(size, -(-len(group) // max(workers, 1))))
+        packs += [group[i:i + share] for i in range(0, len(group), share)]
+    return packs
 
 
 def _gather(futures, timings, total, start, progress, timeout=None):
@@ -330,9 +419,10 @@ class Campaign:
 
 
 def run_campaign(campaign: Campaign, out_dir, *, workers=None, scheduler=None, progress=None,
-                 points_per_task=1) -> CampaignResult:
-    """Runs the points of ``campaign`` not finished in ``out_dir`` before,
-    then scores, aggregates, writes the tables and the report (also after
+                 points_per_task=1, ensemble=DEFAULT_ENSEMBLE) -> CampaignResult:
+    """Runs the points of ``campaign`` not finished in ``out_dir`` before
+    (as ensembles of up to ``ensemble`` environments; 1: each alone), then
+    scores, aggregates, writes the tables and the report (also after
     Ctrl-C, from what finished)."""
     out = Path(out_dir)
     runs = out / campaign.runs_folder
@@ -346,7 +436,7 @@ def run_campaign(campaign: Campaign, out_dir, *, workers=None, scheduler=None, p
         raise ValueError(f"{campaign.name}: two points share a name")
     todo = [(p, runs / p.name) for p in points if finished_metrics(runs / p.name) is None]
     batch = run_points(todo, workers=workers, scheduler=scheduler, progress=progress,
-                       points_per_task=points_per_task)
+                       points_per_task=points_per_task, ensemble=ensemble)
     for point, run_dir in todo:
         failure = (batch.timings.get(point.name) or {}).get("failure")
         if failure and failure_message(run_dir) is None:  # e.g. its worker died each time

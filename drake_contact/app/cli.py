@@ -48,6 +48,7 @@ def _return_freed_arrays_to_the_system():
 _return_freed_arrays_to_the_system()
 
 from drake_contact.errors import ScenarioError  # noqa: E402
+from drake_contact.app.campaign import DEFAULT_ENSEMBLE, MAX_ENSEMBLE  # noqa: E402
 
 EXIT_BAD_INPUT = 2
 EXIT_DIVERGED = 3
@@ -94,6 +95,7 @@ def _build_parser():
                            help="shorter long runs, no baselines (about 80 s on 2 cores)")
     reproduce.add_argument("--jobs", type=int,
                            help="local Dask workers, runs at a time (default: one per core)")
+    _add_ensemble_argument(reproduce)
     reproduce.add_argument("--seeds", default="0-2",
                            help="seeds to score every result on, e.g. 0-2 (default) or 0,5")
     commands.add_parser("list", help="list the bundled scenarios")
@@ -107,6 +109,9 @@ def _build_parser():
                             "at most 20)")
     bench.add_argument("--profile", action="store_true",
                        help="also run the scenario once under cProfile: us/step per Python system")
+    bench.add_argument("--ensemble", metavar="N,N,...",
+                       help="also time ensembles of these sizes (e.g. 1,4,16,64): us per "
+                            "environment-step, speed-up over one run alone, memory")
     sweep = commands.add_parser(
         "sweep", help="run a parameter sweep on a Dask cluster; write results.csv, maps, sweep.html")
     sweep.add_argument("sweep", help="a sweep file, or a bundled sweep's name")
@@ -144,13 +149,31 @@ def _add_cluster_arguments(command):
                        help="worker processes of a local cluster (default: one per core)")
     where.add_argument("--scheduler", metavar="ADDRESS",
                        help="a running Dask scheduler, e.g. tcp://10.0.0.5:8786")
+    _add_ensemble_argument(command)
+
+
+def _add_ensemble_argument(command):
+    command.add_argument("--ensemble", type=int, metavar="N", default=DEFAULT_ENSEMBLE,
+                         help="environments simulated together in one diagram per task, for "
+                              f"points that share a controller (default {DEFAULT_ENSEMBLE}; "
+                              "1: each point alone); the logs are the same")
+
+
+def _check_campaign_arguments(args):
+    """One line, exit 2, for a bad --workers, --jobs or --ensemble."""
+    for flag in ("workers", "jobs"):
+        value = getattr(args, flag, None)
+        if value is not None and value < 1:
+            raise ScenarioError(f"--{flag} = {value} is out of range: must be >= 1")
+    if not 1 <= args.ensemble <= MAX_ENSEMBLE:
+        raise ScenarioError(f"--ensemble = {args.ensemble} is out of range: must be in "
+                            f"[1, {MAX_ENSEMBLE}]")
 
 
 def _cmd_faults(args):
     from drake_contact.app.fault_study import SUITES, check_contenders, run_fault_study
     from drake_contact.app.campaign import points_progress
-    if args.workers is not None and args.workers < 1:
-        raise ScenarioError(f"--workers = {args.workers} is out of range: must be >= 1")
+    _check_campaign_arguments(args)
     if args.suite not in SUITES:
         raise ScenarioError(f"--suite = {args.suite} is unknown: choose one of "
                             f"{', '.join(SUITES)}")
@@ -158,7 +181,7 @@ def _cmd_faults(args):
     _check_out(args.out)
     result = run_fault_study(args.out, contenders=args.controllers, suite=args.suite,
                              workers=args.workers, scheduler=args.scheduler,
-                             progress=points_progress())
+                             progress=points_progress(), ensemble=args.ensemble)
     print(_campaign_line(result))
     for safety in ("off", "on"):
         mine = [e for e in result.tables["faults"] if e["safety"] == safety]
@@ -183,11 +206,21 @@ def _cmd_bench(args):
     from drake_contact.app.bench import bench, load_bench_scenario, profile_scenario
     from drake_contact.errors import SimulationDiverged
     scenario = load_bench_scenario(args.scenario, duration=args.duration)
+    sizes = _ensemble_sizes(args.ensemble)
     try:
-        print(bench(scenario, name=args.scenario).format(), flush=True)
+        result = bench(scenario, name=args.scenario)
+        print(result.format(), flush=True)
         if args.profile:
             print()
             print(profile_scenario(scenario, name=args.scenario).format())
+        if sizes:
+            from drake_contact.app.bench import format_ensembles, time_ensemble
+            timings = []
+            for size in sizes:
+                timings.append(time_ensemble(scenario, size))
+            print()
+            print(format_ensembles(timings, result.scenario.us_per_step, args.scenario,
+                                   scenario.simulation.duration))
     except SimulationDiverged as e:
         print(f"drake-contact: {e}", file=sys.stderr)
         return EXIT_DIVERGED
@@ -195,6 +228,20 @@ def _cmd_bench(args):
         print("drake-contact: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
     return 0
+
+
+def _ensemble_sizes(text):
+    """--ensemble N,N,... as a list of ints (one line, exit 2, when bad)."""
+    if not text:
+        return []
+    try:
+        sizes = [int(part) for part in text.split(",")]
+    except ValueError:
+        sizes = []
+    if not sizes or not all(1 <= n <= MAX_ENSEMBLE for n in sizes):
+        raise ScenarioError(f"--ensemble = {text} is out of range: must be sizes in "
+                            f"[1, {MAX_ENSEMBLE}] separated by commas, e.g. 1,4,16")
+    return sizes
 
 
 def _cmd_run(args):
@@ -245,15 +292,15 @@ def _cmd_run(args):
 
 def _cmd_reproduce(args):
     from drake_contact.app.reproduce import parse_seeds, reproduce, summary_line
-    if args.jobs is not None and args.jobs < 1:
-        raise ScenarioError(f"--jobs = {args.jobs} is out of range: must be >= 1")
+    _check_campaign_arguments(args)
     try:
         seeds = parse_seeds(args.seeds)
     except ValueError as e:
         raise ScenarioError(f"--seeds = {args.seeds} is out of range: {e}") from None
     _check_out(args.out)
     rows, interrupted = reproduce(args.out, quick=args.quick, jobs=args.jobs, seeds=seeds,
-                                  progress=lambda line: print(line, flush=True))
+                                  progress=lambda line: print(line, flush=True),
+                                  ensemble=args.ensemble)
     print(summary_line(rows))
     if interrupted:
         print("drake-contact: interrupted; the report is partial", file=sys.stderr)
@@ -264,12 +311,11 @@ def _cmd_reproduce(args):
 def _cmd_sweep(args):
     from drake_contact.app.campaign import points_progress
     from drake_contact.app.sweep import load_sweep, run_sweep, summary_lines
-    if args.workers is not None and args.workers < 1:
-        raise ScenarioError(f"--workers = {args.workers} is out of range: must be >= 1")
+    _check_campaign_arguments(args)
     sweep = load_sweep(args.sweep, quick=args.quick)
     _check_out(args.out)
     result = run_sweep(sweep, args.out, workers=args.workers, scheduler=args.scheduler,
-                       progress=points_progress())
+                       progress=points_progress(), ensemble=args.ensemble)
     for line in summary_lines(sweep, result):
         print(line)
     print(f"wrote {args.out}/results.csv and {args.out}/sweep.html")
@@ -280,8 +326,7 @@ def _cmd_benchmark(args):
     from drake_contact.app.benchmark import (
         SUITES, contender_names, identifier_names, run_benchmark)
     from drake_contact.app.campaign import points_progress
-    if args.workers is not None and args.workers < 1:
-        raise ScenarioError(f"--workers = {args.workers} is out of range: must be >= 1")
+    _check_campaign_arguments(args)
     if args.suite not in SUITES:
         raise ScenarioError(f"--suite = {args.suite} is unknown: choose one of "
                             f"{', '.join(SUITES)}")
@@ -291,7 +336,7 @@ def _cmd_benchmark(args):
     result = run_benchmark(args.out, contenders=args.controllers,
                            identifiers=args.identifiers, suite=args.suite,
                            workers=args.workers, scheduler=args.scheduler,
-                           progress=points_progress())
+                           progress=points_progress(), ensemble=args.ensemble)
     overall = sorted((e for e in result.tables["leaderboard"] if e["task"] == "all"),
                      key=lambda e: e["rank"])
     print(_campaign_line(result))

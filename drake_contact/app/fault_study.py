@@ -33,6 +33,7 @@ import yaml
 
 from drake_contact.app.benchmark import contender_names, contender_scenario
 from drake_contact.app.campaign import (
+    DEFAULT_ENSEMBLE,
     Campaign, CampaignResult, Point, finished_metrics, run_campaign)
 from drake_contact.errors import ScenarioError
 from drake_contact.faults import FAULT_KINDS, NULL_CASE
@@ -256,9 +257,9 @@ class FaultStudy(Campaign):
 
 
 def run_fault_study(out_dir, *, contenders=None, suite="standard", workers=None,
-                    scheduler=None, progress=None) -> CampaignResult:
+                    scheduler=None, progress=None, ensemble=DEFAULT_ENSEMBLE) -> CampaignResult:
     """Runs the study (the points not finished in ``out_dir`` before) and
     writes runs.csv, faults.csv, faults.md and faults.yaml (what ran). The
     result's tables: ``runs`` and ``faults``."""
     return run_campaign(FaultStudy(suite, contenders), out_dir, workers=workers,
-                        scheduler=scheduler, progress=progress)
+                        scheduler=scheduler, progress=progress, ensemble=ensemble)

@@ -46,7 +46,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path, PurePosixPath
 
-from drake_contact.app.campaign import Campaign, Point, failure_message, run_campaign
+from drake_contact.app.campaign import (
+    DEFAULT_ENSEMBLE, Campaign, Point, failure_message, run_campaign)
 from drake_contact.constants import RATIO_TOLERANCE
 
 
@@ -851,13 +852,15 @@ def write_report(out_dir, rows, *, quick, status, seeds=SEEDS, interrupted=False
 
 
 def reproduce(out_dir, *, quick=False, jobs=None, seeds=SEEDS,
-              progress=print) -> tuple[list[Row], bool]:
+              progress=print, ensemble=DEFAULT_ENSEMBLE) -> tuple[list[Row], bool]:
     """Runs everything over ``seeds`` on ``jobs`` local workers (default one
-    per core) and writes the report; returns (rows, interrupted)."""
+    per core; the runs that share a controller in ensembles of up to
+    ``ensemble``) and writes the report; returns (rows, interrupted)."""
     campaign = Reproduction(out_dir, quick=quick, seeds=seeds, progress=progress)
 
     def finished(done, failed, total, eta_s, name):
         status = run_exit_status(Path(out_dir) / name)
         progress(f"finished {name} (exit {status}) [{done}/{total}, ETA {eta_s:.0f} s]")
-    result = run_campaign(campaign, out_dir, workers=jobs, progress=finished)
+    result = run_campaign(campaign, out_dir, workers=jobs, progress=finished,
+                          ensemble=ensemble)
     return result.tables["results"], result.interrupted

@@ -22,7 +22,8 @@ import numpy as np
 
 from drake_contact.scenario import Scenario, dump_scenario
 from drake_contact.scoring.metrics import baseline_scenario
-from drake_contact.simulation import NpzLog, RunResult, save_log, simulate_scenario
+from drake_contact.simulation import (
+    NpzLog, RunResult, save_log, simulate_ensemble, simulate_scenario)
 from drake_contact.visualization import check_record_path
 
 
@@ -59,10 +60,18 @@ def run(scenario: Scenario, out_dir, *, progress=None, figures=True,
         _write_metrics(out, {"status": "interrupted",
                              "message": "interrupted before the simulation started"})
         raise
+    _finish(scenario, result, out, figures=figures, baseline=baseline)
+    shutil.rmtree(spool, ignore_errors=True)
+    return result
+
+
+def _finish(scenario: Scenario, result: RunResult, out: Path, *, figures, baseline):
+    """Writes a simulated run's log.npz, its baseline run (see :func:`run`),
+    metrics.json and figures into ``out``; ``result.log`` then reads
+    log.npz."""
     save_log(out / "log.npz", result.log)
     # The log now lives in log.npz: read from there, key by key.
     result.log = NpzLog(out / "log.npz")
-    shutil.rmtree(spool, ignore_errors=True)
     log, metrics = result.log, result.metrics
     if baseline is None:
         baseline = figures and scenario.controller.name == "nn"
@@ -87,7 +96,26 @@ def run(scenario: Scenario, out_dir, *, progress=None, figures=True,
         plot_main_signals(log, scenario, out)
         plot_sensor_figures(log, scenario, out)
         plot_contact_figures(log, scenario, out, baseline_log=baseline_log)
-    return result
+
+
+def run_ensemble(scenarios, out_dirs, *, progress=None, figures=None, baselines=None) -> list:
+    """Simulates ``scenarios`` as one ensemble (:func:`simulate_ensemble`)
+    and writes each one's folder of ``out_dirs`` as :func:`run` does: the
+    same files, the same log bit for bit. ``figures`` and ``baselines``:
+    each run's (see :func:`run`; default none; a baseline runs alone, after
+    the ensemble). Returns the RunResults, in order."""
+    outs = [Path(o) for o in out_dirs]
+    for scenario, out in zip(scenarios, outs):
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "scenario.yaml").write_text(dump_scenario(scenario))
+    results = simulate_ensemble(scenarios, progress=progress)
+    figures = figures or [False] * len(scenarios)
+    baselines = baselines or [None] * len(scenarios)
+    for scenario, result, out, drawn, baseline in zip(scenarios, results, outs, figures,
+                                                       baselines):
+        _finish(scenario, result, out, figures=drawn, baseline=baseline)
+        result.simulator = None
+    return results
 
 
 def _write_metrics(out: Path, metrics: dict):

@@ -56,6 +56,7 @@ import numpy as np
 import yaml
 
 from drake_contact.app.campaign import (
+    DEFAULT_ENSEMBLE,
     Campaign, CampaignResult, Point, failure_message, finished_metrics, run_campaign, run_status)
 from drake_contact.app.sweep_figures import STATUSES
 from drake_contact.errors import ScenarioError
@@ -300,16 +301,17 @@ class SweepCampaign(Campaign):
 
 
 def run_sweep(sweep: Sweep, out_dir, *, workers=None, scheduler=None, progress=None,
-              figures=True) -> CampaignResult:
+              figures=True, ensemble=DEFAULT_ENSEMBLE) -> CampaignResult:
     """Runs every task of ``sweep`` not already finished in ``out_dir`` on a
     Dask cluster (:func:`drake_contact.app.campaign.run_campaign`), then
     writes results.csv, the maps and sweep.html.
 
     ``workers``: the LocalCluster's worker processes (default: one per
-    core); ``scheduler``: an address of a running cluster instead.
+    core); ``scheduler``: an address of a running cluster instead;
+    ``ensemble``: environments per ensemble (1: each point alone).
     ``progress(done, failed, total, eta_s, name)`` is called as tasks finish."""
     return run_campaign(SweepCampaign(sweep, figures), out_dir, workers=workers,
-                        scheduler=scheduler, progress=progress)
+                        scheduler=scheduler, progress=progress, ensemble=ensemble)
 
 
 def _resolved(sweep: Sweep) -> dict:
