@@ -228,12 +228,12 @@ def _add_controller(builder, scenarios, states, measured):
         contact = [view[1]["contact_info"] for view in views]
     if "force_desired" in inputs[0]:
         configs = [s.force_reference for s in scenarios]
-        if len(scenarios) > 1 and getattr(ForceReference, "ensemble", False):
+        if len(scenarios) > 1:
             views, _ = _add_role(builder, "force_reference", len(scenarios),
                                  shared=ForceReference(configs))
         else:
-            views, _ = _add_role(builder, "force_reference", len(scenarios),
-                                 per_env=[ForceReference(c) for c in configs])
+            views, _ = _add_role(builder, "force_reference", 1,
+                                 per_env=[ForceReference(configs[0])])
         for (reference_in, reference_out), c, source, p in zip(views, contact, sources, ports):
             builder.Connect(c, reference_in["contact_info"])
             source["force_desired"] = p["force_desired"] = reference_out["force_desired"]

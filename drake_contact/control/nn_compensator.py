@@ -29,9 +29,18 @@ forward pass it uses; so does the option ``output_layer: appendix_e``). The
 weights are discrete state: a copied context carries what the network has
 learned. The initial weights are Appendix E's, read from
 ``models/nn/compensator_initial_weights.yaml``.
+
+One :class:`NnCompensator` serves N environments (an ensemble; one config
+each, a single config for one): the network's arithmetic runs once for all
+of them on arrays over the arm axis (weights (N, 159)), each environment
+bit for bit what it computes alone. The configs may differ in every number
+(rates, ranges, offsets, initial weights, robust gains, the reference
+model's time constant), not in the options they switch on.
 """
 
 import dataclasses as dc
+import functools
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -118,9 +127,7 @@ def load_initial_weights(path, field="initial_weights"):
     """(W (10 x 12), V (13 x 3)) from a weights file; bias rows first."""
     file = Path(path) if Path(path).is_absolute() else models_dir() / path
     try:
-        data = yaml.safe_load(file.read_text())
-        W = np.array(data["input_to_hidden"], dtype=float)
-        V = np.array(data["hidden_to_output"], dtype=float)
+        W, V = (x.copy() for x in _parse_weights(file.read_text()))
     except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError) as e:
         raise ScenarioError(f"{field} = '{path}' cannot be read as network weights: {e}") from None
     if W.shape != (INPUTS + 1, HIDDEN) or V.shape != (HIDDEN + 1, OUTPUTS):
@@ -130,63 +137,190 @@ def load_initial_weights(path, field="initial_weights"):
     return W, V
 
 
+@functools.lru_cache(maxsize=16)
+def _parse_weights(text):
+    """(W, V) from a weights file's text (parsed once per text: an ensemble
+    validates and loads the same file once per environment)."""
+    data = yaml.safe_load(text)
+    return (np.array(data["input_to_hidden"], dtype=float),
+            np.array(data["hidden_to_output"], dtype=float))
+
+
 def _sigma(s):
     return 2.0 / (1.0 + np.exp(-s)) - 1.0
 
 
+def _configs(config):
+    """[config] for one config, the list for a sequence of them (one per
+    environment)."""
+    if isinstance(config, NnCompensatorConfig):
+        return [config]
+    configs = list(config)
+    if not configs:
+        raise ScenarioError("controller.nn: no configs (one per environment, at least one)")
+    return configs
+
+
+_ROBUST_FIELDS = ("leakage", "e_modification", "dead_zone_n", "normalized", "weight_bound")
+
+
+def _switches(config):
+    """The options a config switches on or off (its structure), by the field
+    that switches each."""
+    return {"output_layer": config.output_layer,
+            "learning": bool(config.learning and config.learning_rate > 0),
+            "robust": any(bool(getattr(config, f)) for f in _ROBUST_FIELDS),
+            "normalized": bool(config.normalized),
+            "weight_bound": config.weight_bound > 0,
+            "reference_time_constant_s": config.reference_time_constant_s > 0}
+
+
+def _check_structure(configs, prefix="controller.nn"):
+    """Raises ScenarioError naming the field if the configs differ in the
+    options they switch on (their numbers may differ)."""
+    first = _switches(configs[0])
+    for i, config in enumerate(configs[1:], start=1):
+        for switch, value in _switches(config).items():
+            if value == first[switch]:
+                continue
+            field = switch
+            if switch == "robust":  # named by a robust option on in one, off in the other
+                field = next(f for f in _ROBUST_FIELDS
+                             if bool(getattr(config, f)) != bool(getattr(configs[0], f)))
+            elif switch == "learning":
+                field = "learning" if config.learning != configs[0].learning else "learning_rate"
+            raise ScenarioError(
+                f"{prefix}.{field}: environment {i} switches {switch} to {value} and "
+                f"environment 0 to {first[switch]}: the environments' configs must share "
+                "their structure (which options are on), not only their numbers")
+
+
 class CompensatorNetwork:
-    """The network's arithmetic on a flat weight vector [W.ravel(), V.ravel()]
-    (no Drake), for the system and the tests.
+    """The network's arithmetic for N environments (one config each; a
+    single config: N = 1), on flat weight vectors [W.ravel(), V.ravel()]
+    stacked as (N, 159) (no Drake), for the system and the tests.
 
     One sample's arithmetic runs in work buffers the network owns (the
-    system calls it once per 1 ms sample on 9-12-3 arrays, where numpy's
+    system calls it once per 1 ms sample on small arrays, where numpy's
     per-call cost outweighs the arithmetic): the same IEEE operations, in
-    the same order, as the array expressions in the docstrings, with the
-    3-vectors in Python floats and every matrix product in numpy's BLAS."""
+    the same order, as the array expressions in the docstrings, elementwise
+    over the arm axis. Each matrix product is numpy's ``matmul`` over the
+    stack, which calls BLAS's gemv (or dot) once per environment with the
+    arguments ``np.dot`` passes for one: environment i's sums are those of
+    the single-environment product, bit for bit (BLAS's kernels fuse and
+    reorder the terms, so a product written out elementwise would not be).
+
+    The configs may differ in their numbers (rates, ranges, offsets, initial
+    weights, robust gains), not in the options they switch on (see
+    :func:`_check_structure`)."""
 
     size = (INPUTS + 1) * HIDDEN + (HIDDEN + 1) * OUTPUTS
     _SPLIT = (INPUTS + 1) * HIDDEN
 
-    def __init__(self, config: NnCompensatorConfig):
-        self.eta = config.learning_rate
-        self.R = np.asarray(config.output_half_ranges, dtype=float)
-        self.offsets = np.asarray(config.input_offsets, dtype=float)
-        self.text_output = config.output_layer == "text"
-        self._R = [float(r) for r in self.R]
-        # [1, u]; u's three parts (pose, previous pose, tau_h) and their offsets.
-        self._u1 = np.ones(INPUTS + 1)
-        self._u = self._u1[1:]
-        self._u_parts = [self._u1[1:4], self._u1[4:7], self._u1[7:10]]
-        self._offset_parts = [self.offsets[0:3], self.offsets[3:6], self.offsets[6:9]]
-        # [1, h] and [1, sigma(h)]; a scratch 12-vector; the back-propagated
-        # hidden errors; o's scratch; delta; n.
-        self._h1 = np.ones(HIDDEN + 1)
-        self._h = self._h1[1:]
-        self._s1 = np.ones(HIDDEN + 1)
-        self._s_h = self._s1[1:]
-        self._t = np.empty(HIDDEN)
-        self._back = np.empty(HIDDEN)
-        self._o = np.empty(OUTPUTS)
-        self._to = np.empty(OUTPUTS)
-        self._delta = np.empty(OUTPUTS)
-        self._n = np.empty(OUTPUTS)
-        # The step, flat like the weights (eta [1, u] back^T, eta [1, s] delta^T),
-        # and the new weights.
-        self._step = np.empty(self.size)
-        self._step_W = self._step[:self._SPLIT].reshape(INPUTS + 1, HIDDEN)
-        self._step_V = self._step[self._SPLIT:].reshape(HIDDEN + 1, OUTPUTS)
-        self._u1_column = self._u1[:, None]
-        self._s1_column = self._s1[:, None]
-        self._new = np.empty(self.size)
+    def __init__(self, config: NnCompensatorConfig | Sequence[NnCompensatorConfig]):
+        configs = _configs(config)
+        _check_structure(configs)
+        self.count = count = len(configs)
+        first = configs[0]
+        # Per environment: (N, 1) to scale (N, 159) rows, (N, k) per output/input.
+        self._eta = np.array([[c.learning_rate] for c in configs], dtype=float)
+        self._R = np.array([c.output_half_ranges for c in configs], dtype=float)
+        self._offsets = np.array([c.input_offsets for c in configs], dtype=float)
+        self.text_output = first.output_layer == "text"
+        split = self._SPLIT
+        # The weights (copied in), W, V and V's rows 1: as views.
+        self._w = np.empty((count, self.size))
+        self._w_flat = self._w.reshape(-1)
+        self._W = self._w[:, :split].reshape(count, INPUTS + 1, HIDDEN)
+        self._V = self._w[:, split:].reshape(count, HIDDEN + 1, OUTPUTS)
+        self._V1 = self._V[:, 1:]
+        # [1, u] (u: pose, previous pose, tau_h) and u's three parts; [1, h].
+        self._u1 = np.ones((count, INPUTS + 1))
+        self._u = self._u1[:, 1:]
+        self._u_parts = [self._u1[:, 1:4], self._u1[:, 4:7], self._u1[:, 7:10]]
+        self._offset_parts = [self._offsets[:, 0:3], self._offsets[:, 3:6],
+                              self._offsets[:, 6:9]]
+        self._h1 = np.ones((count, HIDDEN + 1))
+        self._h = self._h1[:, 1:]
+        # [1, sigma(h), q = n / R] in one row, and [1 - sigma(h)^2, 1 - q^2]:
+        # the two slopes take one pair of calls. The first 12 of the latter
+        # are also sigma(h)'s scratch.
+        self._s1q = np.ones((count, 1 + HIDDEN + OUTPUTS))
+        self._s1 = self._s1q[:, :HIDDEN + 1]
+        self._s_h = self._s1q[:, 1:HIDDEN + 1]
+        self._q = self._s1q[:, HIDDEN + 1:]
+        self._sq = self._s1q[:, 1:]
+        self._slopes = np.empty((count, HIDDEN + OUTPUTS))
+        self._t = self._slopes[:, :HIDDEN]
+        self._slope_q = self._slopes[:, HIDDEN:]
+        # The back-propagated hidden errors (and a scratch); o and two
+        # scratches; delta and two scratches; n.
+        self._back = np.empty((count, HIDDEN))
+        self._back_scaled = np.empty((count, HIDDEN))
+        self._o = np.empty((count, OUTPUTS))
+        self._to = np.empty((count, OUTPUTS))
+        self._to2 = np.empty((count, OUTPUTS))
+        self._delta = np.empty((count, OUTPUTS))
+        self._d1 = np.empty((count, OUTPUTS))
+        self._d2 = np.empty((count, OUTPUTS))
+        self._squares = np.empty((count, HIDDEN + OUTPUTS))
+        self._t2 = np.empty((count, HIDDEN))
+        self.n = np.empty((count, OUTPUTS))
+        # Constants as arrays of their operands' shapes (numpy's per-call
+        # cost on these small arrays is lower than with a Python float).
+        self._ones_h, self._twos_h = np.ones((count, HIDDEN)), np.full((count, HIDDEN), 2.0)
+        self._halves_h = np.full((count, HIDDEN), 0.5)
+        self._ones_o, self._twos_o = np.ones((count, OUTPUTS)), np.full((count, OUTPUTS), 2.0)
+        self._halves_o = np.full((count, OUTPUTS), 0.5)
+        self._ones_hq = np.ones((count, HIDDEN + OUTPUTS))
+        self._eta_full = np.repeat(self._eta, self.size, axis=1)
+        # The stacked rows and columns matmul reads and writes.
+        self._u1_row, self._u1_column = self._u1[:, None, :], self._u1[:, :, None]
+        self._s1_row, self._s1_column = self._s1[:, None, :], self._s1[:, :, None]
+        self._o_input_row = (self._s1 if self.text_output else self._h1)[:, None, :]
+        self._h_row, self._o_row = self._h[:, None, :], self._o[:, None, :]
+        self._back_column = self._back[:, :, None]
+        self._back_scaled_row = self._back_scaled[:, None, :]
+        self._delta_row, self._delta_column = self._delta[:, None, :], self._delta[:, :, None]
+        # The step, flat like the weights ([1, u] back^T, [1, s] delta^T),
+        # the step times eta, and the new weights.
+        self._step = np.empty((count, self.size))
+        self._step_W = self._step[:, :split].reshape(count, INPUTS + 1, HIDDEN)
+        self._step_V = self._step[:, split:].reshape(count, HIDDEN + 1, OUTPUTS)
+        self._eta_step = np.empty((count, self.size))
+        self._new = np.empty((count, self.size))
+        self._drift = np.empty((count, self.size))
+        self._stepped = np.empty((count, self.size))
+        self._squares_e = np.empty((OUTPUTS, count))
+        self._sums = np.empty((2, count))
+        self._leak = np.empty((count, 1))
+        self._still = np.empty(count, dtype=bool)
         # Robust modifications (see NnCompensatorConfig); w0 the initial weights.
-        self.leakage = float(config.leakage)
-        self.e_modification = float(config.e_modification)
-        self.dead_zone_n = float(config.dead_zone_n)
-        self.normalized = bool(config.normalized)
-        self.weight_bound = float(config.weight_bound)
-        self.robust = bool(self.leakage or self.e_modification or self.dead_zone_n
-                           or self.normalized or self.weight_bound)
-        self.w0 = self.pack(*load_initial_weights(config.initial_weights))
+        self._leakage = np.array([c.leakage for c in configs], dtype=float)
+        self._e_modification = np.array([c.e_modification for c in configs], dtype=float)
+        self._dead_zone_n = np.array([c.dead_zone_n for c in configs], dtype=float)
+        self._weight_bound = np.array([[c.weight_bound] for c in configs], dtype=float)
+        self.normalized = bool(first.normalized)
+        self.bounded = first.weight_bound > 0
+        self.robust = _switches(first)["robust"]
+        loaded = {}
+        for c in configs:
+            if c.initial_weights not in loaded:
+                loaded[c.initial_weights] = self.pack(*load_initial_weights(c.initial_weights))
+        self._w0 = np.array([loaded[c.initial_weights] for c in configs])
+        # A single config's view: the attributes as for one network.
+        self._single = isinstance(config, NnCompensatorConfig)
+        if self._single:
+            self.eta, self.R, self.offsets = first.learning_rate, self._R[0], self._offsets[0]
+            self.leakage, self.e_modification = float(first.leakage), float(first.e_modification)
+            self.dead_zone_n = float(first.dead_zone_n)
+            self.weight_bound = float(first.weight_bound)
+            self.w0 = self._w0[0]
+        else:
+            self.eta, self.R, self.offsets = self._eta[:, 0], self._R, self._offsets
+            self.leakage, self.e_modification = self._leakage, self._e_modification
+            self.dead_zone_n, self.weight_bound = self._dead_zone_n, self._weight_bound[:, 0]
+            self.w0 = self._w0
 
     @staticmethod
     def pack(W, V):
@@ -198,131 +332,194 @@ class CompensatorNetwork:
         return (weights[:split].reshape(INPUTS + 1, HIDDEN),
                 weights[split:].reshape(HIDDEN + 1, OUTPUTS))
 
-    def _set_inputs(self, pose, previous, tau_h):
-        """u = [pose, previous, tau_h] + offsets, into the [1, u] buffer."""
-        for part, value, offset in zip(self._u_parts, (pose, previous, tau_h),
-                                       self._offset_parts):
-            np.add(value, offset, out=part)
+    def set_inputs(self, pose, previous, tau_h):
+        """u = [pose, previous, tau_h] + offsets, into the [1, u] buffer;
+        each argument (N, 3)."""
+        parts, offsets = self._u_parts, self._offset_parts
+        np.add(pose, offsets[0], parts[0])
+        np.add(previous, offsets[1], parts[1])
+        np.add(tau_h, offsets[2], parts[2])
 
-    def _forward(self, weights):
-        """The forward pass on the buffered inputs: h, sigma(h), o and n into
-        the buffers; returns (V, n as three floats)."""
-        split = self._SPLIT
-        W = weights[:split].reshape(INPUTS + 1, HIDDEN)
-        V = weights[split:].reshape(HIDDEN + 1, OUTPUTS)
-        h, t, o, to = self._h, self._t, self._o, self._to
-        np.dot(self._u1, W, out=h)                     # h = W^T [1, u]
-        np.negative(h, out=t)                          # sigma(h) = 2 / (1 + e^-h) - 1
-        np.exp(t, out=t)
-        np.add(1.0, t, out=t)
-        np.divide(2.0, t, out=t)
-        np.subtract(t, 1.0, out=self._s_h)
-        np.dot(self._s1 if self.text_output else self._h1, V, out=o)
-        np.negative(o, out=to)
-        np.exp(to, out=to)
-        e0, e1, e2 = to.tolist()
-        R0, R1, R2 = self._R
-        return V, (R0 * (2.0 / (1.0 + e0) - 1.0), R1 * (2.0 / (1.0 + e1) - 1.0),
-                   R2 * (2.0 / (1.0 + e2) - 1.0))
+    def load(self, weights):
+        """Copies ``weights`` (159 N, env-major) in."""
+        np.copyto(self._w_flat, weights)
 
-    def _train(self, weights, error):
-        """One step on the buffered inputs with error = (e0, e1, e2); the new
-        weights into the buffer ``_new``; returns n (three floats)."""
-        V, (n0, n1, n2) = self._forward(weights)
-        R0, R1, R2 = self._R
-        e0, e1, e2 = error
-        q0, q1, q2 = n0 / R0, n1 / R1, n2 / R2
-        delta = self._delta                            # e R sigma'(o)
-        delta[0] = e0 * R0 * 0.5 * (1.0 - q0 * q0)
-        delta[1] = e1 * R1 * 0.5 * (1.0 - q1 * q1)
-        delta[2] = e2 * R2 * 0.5 * (1.0 - q2 * q2)
-        back, t, s_h = self._back, self._t, self._s_h  # (V_1: delta) sigma'(h)
-        np.dot(V[1:], delta, out=back)
-        np.multiply(back, 0.5, out=back)
-        np.multiply(s_h, s_h, out=t)
-        np.subtract(1.0, t, out=t)
-        np.multiply(back, t, out=back)
-        step = self._step                              # eta [1, u] back^T, eta [1, s] delta^T
-        np.multiply(self._u1_column, back, out=self._step_W)
-        np.multiply(self._s1_column, delta, out=self._step_V)
+    def _forward(self, n):
+        """The forward pass on the buffered inputs and weights: h, sigma(h)
+        and o into the buffers, n into ``n`` (N, 3)."""
+        t, t2, to, to2 = self._t, self._t2, self._to, self._to2
+        np.matmul(self._u1_row, self._W, self._h_row)      # h = W^T [1, u]
+        np.negative(self._h, t)                            # sigma(h) = 2 / (1 + e^-h) - 1
+        np.exp(t, t2)
+        np.add(self._ones_h, t2, t)
+        np.divide(self._twos_h, t, t2)
+        np.subtract(t2, self._ones_h, self._s_h)
+        np.matmul(self._o_input_row, self._V, self._o_row)
+        np.negative(self._o, to)                           # n = R sigma(o)
+        np.exp(to, to2)
+        np.add(self._ones_o, to2, to)
+        np.divide(self._twos_o, to, to2)
+        np.subtract(to2, self._ones_o, to)
+        np.multiply(self._R, to, n)
+
+    def _train(self, error, n, new):
+        """One step on the buffered inputs and weights with ``error`` (N, 3)
+        = (f, y, phi) errors: n into ``n`` (N, 3), the new weights into
+        ``new`` (N, 159)."""
+        self._forward(n)
+        R, delta, d1, d2 = self._R, self._delta, self._d1, self._d2
+        np.divide(n, R, self._q)                           # sigma(o) = n / R
+        np.multiply(self._sq, self._sq, self._squares)     # 1 - sigma^2, of h and of o
+        np.subtract(self._ones_hq, self._squares, self._slopes)
+        np.multiply(error, R, d1)                          # delta = e R 0.5 (1 - sigma(o)^2)
+        np.multiply(d1, self._halves_o, d2)
+        np.multiply(d2, self._slope_q, delta)
+        back, scaled = self._back, self._back_scaled       # (V_1: delta) 0.5 (1 - sigma(h)^2)
+        np.matmul(self._V1, self._delta_column, self._back_column)
+        np.multiply(back, self._halves_h, self._t2)
+        np.multiply(self._t2, self._t, scaled)
+        np.multiply(self._u1_column, self._back_scaled_row, self._step_W)
+        np.multiply(self._s1_column, self._delta_row, self._step_V)
         if self.robust:
-            self._robust_step(weights, (e0, e1, e2))
-            return n0, n1, n2
-        np.multiply(step, self.eta, out=step)
-        np.add(weights, step, out=self._new)
-        return n0, n1, n2
-
-    def _robust_step(self, weights, error):
-        """The new weights into ``_new`` from the unscaled gradient step in
-        ``_step``, with the configured modifications (NnCompensatorConfig)."""
-        if abs(error[0]) <= self.dead_zone_n:
-            self._new[:] = weights                     # dead zone: no update
+            self._robust_step(error, new)
             return
-        eta = self.eta
+        np.multiply(self._step, self._eta_full, self._eta_step)  # w + eta step
+        np.add(self._w, self._eta_step, new)
+
+    def _robust_step(self, error, new):
+        """The new weights into ``new`` from the unscaled gradient step in
+        ``_step``, with the configured modifications (NnCompensatorConfig):
+        w + eta g - eta (sigma + nu |e|) (w - w0), then the projection; w
+        where |e_f| <= the dead zone."""
+        weights, w0, step, drift = self._w, self._w0, self._step, self._drift
+        count = self.count
         if self.normalized:
-            eta = eta / (1.0 + float(self._u1 @ self._u1) + float(self._s1 @ self._s1))
-        drift = weights - self.w0
-        leak = self.leakage + self.e_modification * float(np.sqrt(sum(e * e for e in error)))
-        self._new[:] = weights + eta * self._step - eta * leak * drift
-        if self.weight_bound > 0:
-            offset = self._new - self.w0
-            norm = float(np.sqrt(offset @ offset))
-            if norm > self.weight_bound:
-                self._new[:] = self.w0 + offset * (self.weight_bound / norm)
+            norms = np.matmul(self._u1_row, self._u1_column).reshape(count, 1)
+            norms += 1.0                                   # (1 + |u1|^2) + |s1|^2
+            norms += np.matmul(self._s1_row, self._s1_column).reshape(count, 1)
+            eta = self._eta / norms
+            np.multiply(eta, step, self._eta_step)
+        else:
+            eta = self._eta
+            np.multiply(self._eta_full, step, self._eta_step)
+        np.subtract(weights, w0, drift)
+        squares, sums, leak = self._squares_e, self._sums, self._leak
+        np.multiply(error.T, error.T, squares)             # |e|, as Python's sum: ((0 + a) + b) + c
+        np.add(squares[0], squares[1], sums[0])
+        np.add(sums[0], squares[2], sums[1])
+        np.sqrt(sums[1], sums[0])
+        np.multiply(self._e_modification, sums[0], sums[1])  # sigma + nu |e|
+        np.add(self._leakage, sums[1], leak[:, 0])
+        np.multiply(eta, leak, leak)                       # eta (sigma + nu |e|) (w - w0)
+        np.multiply(leak, drift, drift)
+        np.add(weights, self._eta_step, self._stepped)
+        np.subtract(self._stepped, drift, new)
+        if self.bounded:
+            offset = new - w0
+            norm = np.matmul(offset[:, None, :], offset[:, :, None]).reshape(count, 1)
+            np.sqrt(norm, out=norm)
+            outside = norm > self._weight_bound
+            if np.count_nonzero(outside):
+                scale = np.divide(self._weight_bound, norm, out=np.ones_like(norm),
+                                  where=outside)
+                np.copyto(new, w0 + offset * scale, where=outside)
+        # Dead zone: no update while |f_d - f| <= dead_zone_n.
+        still = np.less_equal(np.abs(error[:, 0]), self._dead_zone_n, self._still)
+        if np.count_nonzero(still):
+            np.copyto(new, weights, where=still[:, None])
+
+    def _stack(self, weights, inputs, *more):
+        single = np.ndim(weights) == 1
+        if single != (np.ndim(inputs) == 1):
+            raise ValueError("weights and inputs: both one environment's or both stacked")
+        arrays = [np.asarray(a, dtype=float).reshape(self.count, -1)
+                  for a in (weights, inputs, *more)]
+        np.copyto(self._w, arrays[0])
+        np.add(arrays[1], self._offsets, out=self._u)
+        return single, arrays
 
     def forward(self, weights, inputs):
-        """n (3) and the intermediates (u1 = [1, u], h, sigma(h), o)."""
-        np.add(inputs, self.offsets, out=self._u)
-        _, n = self._forward(weights)
-        return np.array(n), (self._u1.copy(), self._h.copy(), self._s_h.copy(),
-                             self._o.copy())
+        """n and the intermediates (u1 = [1, u], h, sigma(h), o) for
+        ``weights`` (159, or (N, 159)) and ``inputs`` (9 or (N, 9)); the
+        results 1-D for 1-D arguments, else stacked."""
+        single, _ = self._stack(weights, inputs)
+        self._forward(self.n)
+        parts = (self.n, self._u1, self._h, self._s_h, self._o)
+        if single:
+            parts = tuple(part[0] for part in parts)
+        n, *intermediates = (part.copy() for part in parts)
+        return n, tuple(intermediates)
 
     def train(self, weights, inputs, error):
         """One step on 1/2 |error|^2, error = target - n at this sample's
-        forward pass; returns (new weights, n before the step)."""
-        np.add(inputs, self.offsets, out=self._u)
-        n = self._train(weights, np.asarray(error, dtype=float).tolist())
-        return self._new.copy(), np.array(n)
+        forward pass; returns (new weights, n before the step), 1-D for
+        1-D arguments, else stacked (N, ...)."""
+        single, (_, _, error) = self._stack(weights, inputs, error)
+        self._train(error, self.n, self._new)
+        if single:
+            return self._new[0].copy(), self.n[0].copy()
+        return self._new.copy(), self.n.copy()
 
 
 class NnCompensationLaw(LeafSystem):
-    """The compensator's law as one leaf system (see :class:`NnCompensator`
-    for the ports): its single output ``compensation`` = [J^T n (3), n (3),
-    the weights after this sample's training (159)] is evaluated on the
-    inputs at a sample instant and held between them; the discrete update
-    at each sample stores the weights, the pose (next sample's previous
-    pose) and the held outputs.
+    """The compensator's law as one leaf system for N environments (one
+    config each; see :class:`NnCompensator` for the ports): its single
+    output ``compensation`` = [J^T n (3 N), n (3 N), the weights after this
+    sample's training (159 N)], each field env-major, is evaluated on the
+    inputs at a sample instant and held between them (a cached output: the
+    law runs once per sample); the discrete update at each sample stores
+    the weights, the pose (next sample's previous pose) and the held
+    outputs.
 
-    State groups: 0 the weights (159), 1 the previous tip pose (3), 2 the
-    held [J^T n, n] (6), 3 the reference model's force f_m (1; NaN outside
-    contact).
+    State groups (each env-major): 0 the weights (159 N), 1 the previous
+    tip pose (3 N), 2 the held [J^T n (3 N), n (3 N)] (field-major, as in
+    the output), 3 the reference model's force f_m (N; NaN outside contact).
     """
 
-    def __init__(self, config: NnCompensatorConfig, y_desired=0.0, phi_desired=0.0):
+    def __init__(self, config: NnCompensatorConfig | Sequence[NnCompensatorConfig],
+                 y_desired=0.0, phi_desired=0.0):
         super().__init__()
-        config.validate()
-        self._net = CompensatorNetwork(config)
-        self._learning = config.learning and config.learning_rate > 0
-        self._targets = np.array([y_desired, phi_desired])
-        self._y_desired, self._phi_desired = (float(x) for x in self._targets)
-        self._pose = self.DeclareVectorInputPort("tip_pose", 3)
-        self._jacobian = self.DeclareVectorInputPort("tip_jacobian", 9)
-        self._tau_h = self.DeclareVectorInputPort("hybrid_torque", 3)
-        self._force = self.DeclareVectorInputPort("force", 1)
-        self._force_desired = self.DeclareVectorInputPort("force_desired", 1)
-        self._mode = self.DeclareVectorInputPort("mode", 1)
-        W, V = load_initial_weights(config.initial_weights)
-        self._weights = self.DeclareDiscreteState(CompensatorNetwork.pack(W, V))
-        self._previous_pose = self.DeclareDiscreteState(3)
-        self._held = self.DeclareDiscreteState(6)
+        configs = _configs(config)
+        for i, c in enumerate(configs):
+            c.validate("controller.nn" if len(configs) == 1 else f"controller.nn[{i}]")
+        self._net = net = CompensatorNetwork(
+            config if isinstance(config, NnCompensatorConfig) else configs)
+        self._count = count = net.count
+        self._learning = _switches(configs[0])["learning"]
+        # Targets (N, 2): [y_d, phi_d] per environment.
+        self._targets = np.stack([np.broadcast_to(np.asarray(y_desired, dtype=float), count),
+                                  np.broadcast_to(np.asarray(phi_desired, dtype=float), count)],
+                                 axis=1)
+        self._pose = self.DeclareVectorInputPort("tip_pose", 3 * count)
+        self._jacobian = self.DeclareVectorInputPort("tip_jacobian", 9 * count)
+        self._tau_h = self.DeclareVectorInputPort("hybrid_torque", 3 * count)
+        self._force = self.DeclareVectorInputPort("force", count)
+        self._force_desired = self.DeclareVectorInputPort("force_desired", count)
+        self._mode = self.DeclareVectorInputPort("mode", count)
+        self._weights = self.DeclareDiscreteState(net._w0.ravel())
+        self._previous_pose = self.DeclareDiscreteState(3 * count)
+        self._held = self.DeclareDiscreteState(6 * count)
         # The reference model: f_m[k] = a f_m[k-1] + (1 - a) f_d[k], a = e^(-T/tau).
-        tau = config.reference_time_constant_s
-        self._reference_pole = float(np.exp(-CONTROL_PERIOD / tau)) if tau > 0 else None
-        self._reference = self.DeclareDiscreteState([np.nan])
+        self._reference_model = configs[0].reference_time_constant_s > 0
+        poles = [float(np.exp(-CONTROL_PERIOD / c.reference_time_constant_s))
+                 if c.reference_time_constant_s > 0 else 0.0 for c in configs]
+        self._reference_pole = np.array(poles)
+        self._reference_gain = np.array([1.0 - a for a in poles])
+        self._reference = self.DeclareDiscreteState(np.full(count, np.nan))
         # Plain ints index the groups (cheaper to pass to pydrake).
         self._i_weights, self._i_previous, self._i_held, self._i_reference = (
             int(i) for i in (self._weights, self._previous_pose, self._held, self._reference))
-        self._size = 6 + len(CompensatorNetwork.pack(W, V))
+        self._size = (6 + CompensatorNetwork.size) * count
+        # Work buffers: the error (N, 3) the network learns from; the mode
+        # test; the reference model's target (numpy's per-call cost
+        # dominates on (N,) arrays: constants are arrays too).
+        self._error = np.empty((count, OUTPUTS))
+        self._force_error, self._pose_error = self._error[:, 0], self._error[:, 1:]
+        self._halves = np.full(count, 0.5)
+        self._approach = np.empty(count, dtype=bool)
+        self._first = np.empty(count, dtype=bool)
+        self._target = np.empty(count)
+        self._target_terms = np.empty((2, count))
         self._compensation = self.DeclareVectorOutputPort(
             "compensation", self._size, self._calc_compensation,
             prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket(),
@@ -330,86 +527,106 @@ class NnCompensationLaw(LeafSystem):
         DeclareSampledUpdate(self, self._update)
 
     def _calc_compensation(self, context, output):
+        count = self._count
+        held = 6 * count
         weights = context.get_discrete_state(self._i_weights).value()
         value = output.get_mutable_value()
         if not is_sample_time(context.get_time()):
-            value[6:] = weights
-            value[:6] = context.get_discrete_state(self._i_held).value()
+            value[held:] = weights
+            value[:held] = context.get_discrete_state(self._i_held).value()
             return
-        if self._mode.Eval(context)[0] < 0.5:
-            value[6:] = weights
-            value[:6] = 0.0
+        approach = np.less(self._mode.Eval(context), self._halves, self._approach)
+        approaching = np.count_nonzero(approach)
+        if approaching == count:
+            value[held:] = weights
+            value[:held] = 0.0
             return
         net = self._net
-        pose = self._pose.Eval(context)
-        net._set_inputs(pose, context.get_discrete_state(self._i_previous).value(),
-                        self._tau_h.Eval(context))
+        pose = self._pose.Eval(context).reshape(count, 3)
+        previous = context.get_discrete_state(self._i_previous).value().reshape(count, 3)
+        net.set_inputs(pose, previous, self._tau_h.Eval(context).reshape(count, 3))
+        net.load(weights)
+        # The network writes n and the new weights into the output.
+        n = value[3 * count:held].reshape(count, 3)
+        new = value[held:].reshape(count, CompensatorNetwork.size)
         if self._learning:
-            _, y, phi = pose.tolist()
-            f = self._force.Eval(context)[0]
-            n = net._train(weights, (self._force_target(context, f) - f,
-                                     self._y_desired - y, self._phi_desired - phi))
-            value[6:] = net._new
+            f = self._force.Eval(context)
+            np.subtract(self._force_target(context, f), f, self._force_error)
+            np.subtract(self._targets, pose[:, 1:], self._pose_error)
+            net._train(self._error, n, new)
         else:
-            value[6:] = weights
-            n = net._forward(weights)[1]
-        n_out = value[3:6]
-        n_out[0], n_out[1], n_out[2] = n
-        J = self._jacobian.Eval(context).reshape(3, 3)
-        np.dot(J.T, n_out, out=value[:3])
+            net._forward(n)
+            new[:] = net._w
+        # J^T n = (n^T J)^T, J row-major (N, 3, 3).
+        np.matmul(n[:, None, :], self._jacobian.Eval(context).reshape(count, 3, 3),
+                  value[:3 * count].reshape(count, 1, 3))
+        if approaching:  # outside contact: no learning, no compensation
+            value[:held].reshape(2, count, 3)[:, approach] = 0.0
+            new[approach] = net._w[approach]
 
     def _force_target(self, context, f):
-        """The force the network is asked for at this contact sample: f_d,
-        or with a reference model f_m (see NnCompensatorConfig)."""
-        f_d = self._force_desired.Eval(context)[0]
-        a = self._reference_pole
-        if a is None:
+        """The force (N) the network is asked for at this contact sample:
+        f_d, or with a reference model f_m (see NnCompensatorConfig)."""
+        f_d = self._force_desired.Eval(context)
+        if not self._reference_model:
             return f_d
-        previous = context.get_discrete_state(self._i_reference).value()[0]
-        if previous != previous:  # NaN: the first sample in contact
-            previous = f
-        return a * previous + (1.0 - a) * f_d
+        previous = context.get_discrete_state(self._i_reference).value()
+        if np.count_nonzero(np.not_equal(previous, previous, self._first)):
+            previous = np.where(self._first, f, previous)  # NaN: the first sample in contact
+        lag, step, target = self._target_terms[0], self._target_terms[1], self._target
+        np.multiply(self._reference_pole, previous, lag)
+        np.multiply(self._reference_gain, f_d, step)
+        np.add(lag, step, target)
+        return target
 
     def _update(self, context, state):
         if not is_sample_time(context.get_time()):
             return  # t = 0: the first sample is at 1 ms
+        held = 6 * self._count
         compensation = self._compensation.Eval(context)
-        state.get_mutable_value(self._i_weights)[:] = compensation[6:]
+        state.get_mutable_value(self._i_weights)[:] = compensation[held:]
         state.get_mutable_value(self._i_previous)[:] = self._pose.Eval(context)
-        state.get_mutable_value(self._i_held)[:] = compensation[:6]
-        if self._reference_pole is not None:
+        state.get_mutable_value(self._i_held)[:] = compensation[:held]
+        if self._reference_model:  # f_m, forgotten outside contact
             reference = state.get_mutable_value(self._i_reference)
-            if self._mode.Eval(context)[0] < 0.5:
-                reference[0] = np.nan
-            else:
-                reference[0] = self._force_target(context, self._force.Eval(context)[0])
+            approach = np.less(self._mode.Eval(context), self._halves, self._approach)
+            approaching = np.count_nonzero(approach)
+            if approaching < self._count:
+                reference[:] = self._force_target(context, self._force.Eval(context))
+            if approaching:
+                reference[approach] = np.nan
 
 
 class NnCompensator(Diagram):
-    """The compensator, sampled every 1 ms in the same event as the hybrid
-    controller, whose outputs of this sample it reads.
+    """The compensator for N environments (one config each; a single config:
+    N = 1), sampled every 1 ms in the same event as the hybrid controller,
+    whose outputs of this sample it reads.
 
-    Input ports:
-      tip_pose (3): measured [x, y, phi] (m, rad);
-      tip_jacobian (9): J of [x, y, phi] w.r.t. q, row-major (the hybrid
+    Input ports (env-major: environment i's k values at [k i, k i + k)):
+      tip_pose (3 N): measured [x, y, phi] (m, rad);
+      tip_jacobian (9 N): J of [x, y, phi] w.r.t. q, row-major (the hybrid
         controller's, this sample);
-      hybrid_torque (3): the hybrid part's motor commands tau_h (N m);
-      force (1): the DSP's filtered force (N); force_desired (1) (N);
-      mode (1): the controller's mode (1 = contact).
-    Output ports (this sample's values, held between samples):
-      joint_torque (3): J^T n (N m), zero outside contact;
-      nn_output (3): n = [n_x (N), n_y (N), n_phi (N m)].
-    State: the weights (159), the previous tip pose, the held outputs.
-    Targets y_d = phi_d = 0 (the hybrid controller's). A sub-diagram: the
-    law (:class:`NnCompensationLaw`) and a Demultiplexer naming its outputs.
+      hybrid_torque (3 N): the hybrid part's motor commands tau_h (N m);
+      force (N): the DSP's filtered force (N); force_desired (N) (N);
+      mode (N): the controller's mode (1 = contact).
+    Output ports (this sample's values, held between samples; env-major):
+      joint_torque (3 N): J^T n (N m), zero outside contact;
+      nn_output (3 N): n = [n_x (N), n_y (N), n_phi (N m)].
+    State: the weights (159 N), the previous tip pose, the held outputs.
+    Targets y_d, phi_d (one, or one per environment) are the hybrid
+    controller's. A sub-diagram: the law (:class:`NnCompensationLaw`) and a
+    Demultiplexer naming its outputs.
     """
 
-    def __init__(self, config: NnCompensatorConfig, y_desired=0.0, phi_desired=0.0):
+    def __init__(self, config: NnCompensatorConfig | Sequence[NnCompensatorConfig],
+                 y_desired=0.0, phi_desired=0.0):
         super().__init__()
         builder = DiagramBuilder()
         law = builder.AddNamedSystem("law", NnCompensationLaw(config, y_desired, phi_desired))
+        count = law._count
         size = law.get_output_port().size()
-        split = builder.AddNamedSystem("outputs", Demultiplexer([3, 3, size - 6]))
+        split = builder.AddNamedSystem("outputs",
+                                       Demultiplexer([3 * count, 3 * count, size - 6 * count]))
         builder.Connect(law.get_output_port(), split.get_input_port())
         for port in range(law.num_input_ports()):
             builder.ExportInput(law.get_input_port(port), law.get_input_port(port).get_name())
