@@ -532,7 +532,7 @@ def _add_sensing(builder, envs, scenarios, states, physics) -> list:
         estimators.append(estimator)
 
     configs = [s.force_sensor for s in scenarios]
-    if count > 1 and getattr(AddForceSensor, "ensemble", False):
+    if count > 1:
         views = _role_views(builder, "force_sensor", count, AddForceSensor(builder, configs))
     else:
         views = [(_input_ports(sensor), _vector_outputs(sensor))

@@ -28,6 +28,12 @@ held gauge noise makes the +-2 N seen at rest (Fig 4.4).
 The output is a voltage, force / ``output_scale_n_per_v`` (200 N/V), with the
 sensor's sign: pushing the wall gives a negative Fx; the DSP flips it.
 
+One system serves N environments (the arm axis): every port is env-major,
+each environment has its own config (one structure: the same
+``analog_order``, ``fine_rate_hz`` and ``adc_rate_hz``) and its own noise
+source, and the law is written once over the environments. Environment i is
+the single sensor with configs[i], bit for bit; N = 1 is the thesis's sensor.
+
 Delay and rise time of the whole chain (sensor, DSP ADC, tare, filter) on a
 20 N step of the true force at t = 0.1 s, in phase with an ADC sample
 (measured by ``tests/test_sensor_chain.py``, noise, glitch and offset off):
@@ -39,12 +45,13 @@ about 2.7 ms), the 480 Hz hold, the 500 Hz reconstruction filter and the
 """
 
 import dataclasses as dc
+import functools
 import math
 
 import numpy as np
 from pydrake.common import RandomDistribution
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
-from pydrake.systems.primitives import RandomSource
+from pydrake.systems.primitives import Multiplexer, RandomSource
 from scipy import signal
 
 from drake_contact.blocks import AddSubdiagram
@@ -139,8 +146,68 @@ class ForceSensorConfig:
         return 1.0 / self.fine_rate_hz
 
 
+# The fields that fix an ensemble's structure: the state's size
+# (analog_order), the frame's fine ticks (fine_rate_hz, also the DSP's) and
+# the ADC schedule, which every environment's frame shares (adc_rate_hz).
+# Every other field may differ per environment.
+_STRUCTURE = ("analog_order", "fine_rate_hz", "adc_rate_hz")
+
+
+def _environments(config) -> tuple:
+    """``config`` (one :class:`ForceSensorConfig` or a sequence of them) as
+    one validated config per environment, all of one structure."""
+    configs = (config,) if isinstance(config, ForceSensorConfig) else tuple(config)
+    if not configs:
+        raise ScenarioError("force_sensor: no environment (give one config per environment)")
+    for i, c in enumerate(configs):
+        c.validate("force_sensor" if len(configs) == 1 else f"force_sensor[{i}]")
+    for field in _STRUCTURE:
+        values = sorted({getattr(c, field) for c in configs})
+        if len(values) > 1:
+            raise ScenarioError(f"force_sensor.{field} differs between environments {values}: "
+                                "it must be the same in all (one structure per ensemble)")
+    return configs
+
+
+def _lifted_chain(c: ForceSensorConfig, ticks: int) -> dict:
+    """One environment's analog chain on the fine clock, lifted to a frame
+    of ``ticks`` fine ticks: the gauge filter's state at tick j,
+    x_j = P_j x_0 + L_j (g * noise) + U_j u (one matrix per j), the gauges
+    C x, and the output stage, frame = F xo_0 + G dac and xo_N = E xo_0 +
+    H dac, where dac holds the DAC's output over the frame's ticks (one
+    matrix product per frame instead of a loop over ticks); the output is
+    C_out xo, at rest at xo = rest * v for a constant DAC output v."""
+    A, B, C, _ = discretize_analog(*butterworth_analog(c.analog_cutoff_hz, c.analog_order),
+                                   c.fine_period)
+    eye3 = np.eye(3)
+    A, B, C = np.kron(eye3, A), np.kron(eye3, B), np.kron(eye3, C)
+    N = ticks
+    powers = [np.linalg.matrix_power(A, k) for k in range(N + 1)]
+    # x_j = P_j x_0 + sum_{m<j} A^(j-1-m) B (u + g * noise_m)
+    U = [sum((powers[j - 1 - m] @ B for m in range(j)), np.zeros_like(B)) for j in range(N + 1)]
+    L = [np.hstack([powers[j - 1 - m] @ B if m < j else np.zeros_like(B) for m in range(N)])
+         for j in range(N + 1)]
+    Ao, Bo, Co, _ = discretize_analog(*butterworth_analog(c.output_bandwidth_hz, 2),
+                                      c.fine_period)
+    powers_o = [np.linalg.matrix_power(Ao, k) for k in range(N + 1)]
+    return dict(
+        gauge_P=powers, gauge_L=L, gauge_U=U, gauge_C=C,
+        out_F=np.vstack([Co @ powers_o[i] for i in range(N)]),
+        out_G=np.array([[(Co @ powers_o[i - 1 - m] @ Bo)[0, 0] if m < i else 0.0
+                         for m in range(N)] for i in range(N)]),
+        out_E=powers_o[N],
+        out_H=np.hstack([powers_o[N - 1 - m] @ Bo for m in range(N)]),
+        out_C=Co[0],
+        out_rest=(np.eye(2) - Ao, Bo[:, 0]))
+
+# The fields a lifted chain depends on.
+_CHAIN_FIELDS = ("analog_cutoff_hz", "analog_order", "fine_rate_hz", "output_bandwidth_hz")
+
+
 class ForceSensor(LeafSystem):
-    """The FS6-120A on the fine clock, advanced one 1 ms frame per update.
+    """The FS6-120A on the fine clock, advanced one 1 ms frame per update,
+    for N environments at once (the arm axis; N = 1 is the one sensor of the
+    thesis's diagram).
 
     Each update at t_n simulates the fine ticks of [t_n, t_n + 1 ms): the
     gauge filter (exact, by precomputed powers of its tick matrix), the 480 Hz
@@ -149,77 +216,103 @@ class ForceSensor(LeafSystem):
     over the same interval (at a 1 ms plant step; finer plant steps are seen
     at 1 kHz by the sensor).
 
+    ``config`` is one :class:`ForceSensorConfig`, or a sequence of N (one per
+    environment) of one structure: the same ``analog_order``,
+    ``fine_rate_hz`` and ``adc_rate_hz``; every other field may differ.
+    Every port is env-major: environment i's k values sit at [k i, k (i + 1)).
+
     Input ports:
-      wrench (3): [Fx, Fy, Tz] on the tip in world axes (N, N, N m).
-      tip_state (6): the tip's [x, y, phi, ...]; phi rotates into the sensor frame.
-      gauge_noise (3 * ticks): standard normal samples, one per tick and channel.
+      wrench (3 N): [Fx, Fy, Tz] on the tip in world axes (N, N, N m).
+      tip_state (6 N): the tip's [x, y, phi, ...]; phi rotates into the sensor frame.
+      gauge_noise (3 ticks N): standard normal samples, one per tick and channel.
     Output ports (state outputs, no Python when read):
-      voltage (1): the analog Fx output (V) at the end of the frame, i.e. at
+      voltage (N): the analog Fx output (V) at the end of the frame, i.e. at
         the instant the DSP samples it.
-      voltage_frame (ticks): the output at each fine tick of the frame (V),
+      voltage_frame (ticks N): the output at each fine tick of the frame (V),
         for analog filters downstream (see lifted_analog_filter_system).
     """
 
-    def __init__(self, config: ForceSensorConfig):
+    def __init__(self, config):
         super().__init__()
-        config.validate()
-        c = self._config = config
-        self._ticks = round(c.fine_rate_hz * CONTROL_PERIOD)
+        configs = _environments(config)
+        c = configs[0]  # the structure, shared
+        n = self._envs = len(configs)
+        self._ticks = T = round(c.fine_rate_hz * CONTROL_PERIOD)
         self._adc_every = round(c.fine_rate_hz / c.adc_rate_hz)
-        self._glitch_ticks = max(1, round(c.dac_glitch_duration_s * c.fine_rate_hz))
-        self._glitch_v = c.dac_glitch_n / c.output_scale_n_per_v
-        self._cal = np.asarray(c.calibration_matrix, dtype=float)
-        self._full = np.asarray(c.adc_full_scale, dtype=float)
-        self._lsb = 2.0 * self._full / 2 ** c.adc_bits
-        self._noise_gain = np.tile(noise_input_gain(c), round(c.fine_rate_hz * CONTROL_PERIOD))
         self._fine_rate = c.fine_rate_hz
         self._fine_period = c.fine_period
-        # Per channel: lsb and the lowest and highest counts (whole numbers).
-        self._adc_channels = tuple(zip(self._lsb.tolist(), (-self._full / self._lsb).tolist(),
-                                       (self._full / self._lsb - 1).tolist()))
-        self._cal_row0_unit = self._cal[0].tolist() == [1.0, 0.0, 0.0]
 
-        # Gauge filter, 3 channels, on the fine clock; lifted to any tick j.
-        A, B, C, _ = discretize_analog(*butterworth_analog(c.analog_cutoff_hz, c.analog_order),
-                                       c.fine_period)
-        eye3 = np.eye(3)
-        A, B, C = np.kron(eye3, A), np.kron(eye3, B), np.kron(eye3, C)
-        N = self._ticks
-        powers = [np.linalg.matrix_power(A, k) for k in range(N + 1)]
-        self._gauge_C = C
-        self._gauge_P = powers
-        # x_j = P_j x_0 + sum_{m<j} A^(j-1-m) B (u + g * noise_m)
-        self._gauge_U = [sum((powers[j - 1 - m] @ B for m in range(j)), np.zeros_like(B))
-                         for j in range(N + 1)]
-        self._gauge_L = [np.hstack([powers[j - 1 - m] @ B if m < j else np.zeros_like(B)
-                                    for m in range(N)]) for j in range(N + 1)]
-        self._nx = A.shape[0]
-        # Output stage (2nd order) on the fine clock, lifted to the frame:
-        # frame = F xo_0 + G dac and xo_N = E xo_0 + H dac, where dac holds
-        # the DAC's output over the frame's N ticks (one matrix product per
-        # frame instead of a loop over ticks).
-        Ao, Bo, Co, _ = discretize_analog(*butterworth_analog(c.output_bandwidth_hz, 2),
-                                          c.fine_period)
-        powers_o = [np.linalg.matrix_power(Ao, k) for k in range(N + 1)]
-        self._out_F = np.vstack([Co @ powers_o[i] for i in range(N)])
-        self._out_G = np.array([[(Co @ powers_o[i - 1 - m] @ Bo)[0, 0] if m < i else 0.0
-                                 for m in range(N)] for i in range(N)])
-        self._out_E = powers_o[N]
-        self._out_H = np.hstack([powers_o[N - 1 - m] @ Bo for m in range(N)])
-        self._out_C = Co[0]
+        # The per-environment numbers on the arm axis, each computed as the
+        # single sensor computed it.
+        def per_env(value):
+            return np.array([value(c) for c in configs], dtype=float)
+        self._glitch_lengths = per_env(  # in fine ticks
+            lambda c: max(1, round(c.dac_glitch_duration_s * c.fine_rate_hz))).astype(int)
+        self._glitch_v = per_env(lambda c: c.dac_glitch_n / c.output_scale_n_per_v)
+        self._offset = per_env(lambda c: c.offset_n)
+        self._drift = per_env(lambda c: c.offset_drift_n_per_s)
+        self._drifts = any(c.offset_drift_n_per_s != 0 for c in configs)
+        self._scale = per_env(lambda c: c.output_scale_n_per_v)
+        self._cal = per_env(lambda c: c.calibration_matrix)
+        full = per_env(lambda c: c.adc_full_scale)
+        # The ADC per channel [env, channel], and flat (env-major) for the
+        # wrench's three channels; the lowest and highest counts are whole numbers.
+        self._lsb = 2.0 * full / per_env(lambda c: 2 ** c.adc_bits)[:, None]
+        self._lowest, self._highest = -full / self._lsb, full / self._lsb - 1
+        self._adc_channels = tuple(a.reshape(-1) for a in (self._lsb, self._lowest, self._highest))
+        self._fx_channel = tuple(np.ascontiguousarray(a[:, 0])
+                                 for a in (self._lsb, self._lowest, self._highest))
+        self._half = np.full(n, 0.5)  # rounds half up: floor(w / lsb + 0.5)
+        # Row 0 of every calibration is [1, 0, 0]: the product's Fx is the Fx
+        # value exactly (the other terms are signed zeros: finite counts).
+        self._fx_passes_through = all(row.tolist() == [1.0, 0.0, 0.0] for row in self._cal[:, 0])
+        self._noise_gain = np.concatenate([np.tile(noise_input_gain(c), T) for c in configs])
 
-        self._wrench = self.DeclareVectorInputPort("wrench", 3)
-        self._tip = self.DeclareVectorInputPort("tip_state", 6)
-        self._noise = self.DeclareVectorInputPort("gauge_noise", 3 * N)
+        made, chains = {}, []  # each distinct chain once: environments often share theirs
+        for c in configs:
+            key = tuple(getattr(c, field) for field in _CHAIN_FIELDS)
+            if key not in made:
+                made[key] = _lifted_chain(c, T)
+            chains.append(made[key])
+
+        def stacked(key, axis=0):
+            return np.stack([chain[key] for chain in chains], axis=axis)
+        # x -> M x per environment for every matrix M of the chain; the gauge
+        # filter's for each tick of the frame.
+        self._gauge_filter = tuple([_products(M) for M in stacked(key, axis=1)]
+                                   for key in ("gauge_P", "gauge_L", "gauge_U"))
+        self._gauges = _products(stacked("gauge_C"))
+        self._output_stage = tuple(_products(stacked(key))
+                                   for key in ("out_E", "out_H", "out_F", "out_G"))
+        self._output = _products(stacked("out_C")[:, None])  # one row
+        self._calibrate = _products(self._cal)
+        self._nx = nx = chains[0]["gauge_P"][0].shape[0]
+        # Env 0's chain by the single sensor's names, for the first-written
+        # update in tests/test_force_sensor.py (a reference for N = 1).
+        self._config, self._glitch_ticks = c, int(self._glitch_lengths[0])
+        (self._gauge_P, self._gauge_L, self._gauge_U, self._gauge_C, self._out_F, self._out_G,
+         self._out_E, self._out_H, self._out_C) = (
+             chains[0][key] for key in ("gauge_P", "gauge_L", "gauge_U", "gauge_C", "out_F",
+                                        "out_G", "out_E", "out_H", "out_C"))
+
+        self._wrench = self.DeclareVectorInputPort("wrench", 3 * n)
+        self._tip = self.DeclareVectorInputPort("tip_state", 6 * n)
+        self._noise = self.DeclareVectorInputPort("gauge_noise", 3 * T * n)
         # The sensor has been on for a while: start at its offset, at rest.
-        v0 = c.offset_n / c.output_scale_n_per_v
-        self._voltage = self.DeclareDiscreteState([v0])
-        self._frame = self.DeclareDiscreteState(np.full(N, v0))
-        # [gauge filter state (nx), held volts, glitch ticks left,
-        #  output-stage state (2)], at the DC steady state of the offset.
-        xo0 = np.linalg.solve(np.eye(2) - Ao, Bo[:, 0] * v0)
-        self._internal = self.DeclareDiscreteState(
-            np.concatenate([np.zeros(self._nx), [v0, 0.0], xo0]))
+        v0 = self._offset / self._scale
+        self._voltage = self.DeclareDiscreteState(v0)
+        self._frame = self.DeclareDiscreteState(np.repeat(v0, T))
+        # Field-major, each field env-major: [gauge filter states (nx N),
+        # held volts (N), glitch ticks left (N), output-stage states (2 N)],
+        # at the DC steady state of the offset.
+        self._gauge_field = slice(0, nx * n)
+        self._held_field = slice(nx * n, (nx + 1) * n)
+        self._glitch_field = slice((nx + 1) * n, (nx + 2) * n)
+        self._output_field = slice((nx + 2) * n, (nx + 4) * n)
+        self._internal = self.DeclareDiscreteState(np.concatenate(
+            [np.zeros(nx * n), v0, np.zeros(n)]
+            + [np.linalg.solve(chain["out_rest"][0], chain["out_rest"][1] * v)
+               for v, chain in zip(v0, chains)]))
         # The frame plans by tick phase and glitch carry, each made when first
         # met (not all up front: a slow ADC with a long glitch has millions).
         self._plans = {}
@@ -231,128 +324,197 @@ class ForceSensor(LeafSystem):
     def ticks_per_frame(self):
         return self._ticks
 
-    # The update runs once per 1 ms step in Python, so it is written for
-    # numpy's per-call cost: ndarray.dot (the same BLAS gemv/dot as ``@``,
-    # with less dispatch), the ADC's scalar arithmetic on Python floats, and
-    # the frame's ADC ticks and glitch train looked up by the tick phase. Every
-    # floating-point operation is the one of the straightforward version
-    # (kept as ``_adc_reference`` and in tests/test_force_sensor.py), in the
-    # same order: the results are bit-identical.
+    @property
+    def num_envs(self):
+        return self._envs
+
+    # The update runs once per 1 ms step in Python, for all environments. Its
+    # vectors are flat and env-major, as the ports (for N = 1 the single
+    # sensor's arrays), the products are one BLAS gemv (or dot) per
+    # environment, the call the single sensor made (see _products), and the
+    # ADC's numbers are per environment [env]. So every floating-point
+    # operation of an environment is the one of the straightforward single
+    # sensor (kept as ``_adc_reference`` and in tests/test_force_sensor.py),
+    # in the same order: the results are bit-identical (NaN's sign bit
+    # included for N = 1; for N > 1 the NaN of a diverged environment may
+    # differ in sign from its single run's).
 
     def _plan(self, phase, glitch_left):
         """The frame's ADC ticks (the first at -first_tick mod adc_every),
-        its glitch train (glitch_ticks ticks after each DAC update, carried
-        across frames) and the glitch ticks left after it, for a frame whose
-        first fine tick is ``phase`` modulo the ADC period, with
-        ``glitch_left`` glitch ticks carried in. They repeat: the plans of
-        every phase are made once."""
-        N = self._ticks
-        glitch = np.zeros(N)
-        glitch[:min(glitch_left, N)] = self._glitch_v
-        adc_ticks = tuple(range(-phase % self._adc_every, N, self._adc_every))
+        the lengths of the frame's spans between them (the DAC's holds, per
+        environment), each environment's glitch train (glitch_ticks ticks after each DAC
+        update, carried across frames; flat) and glitch ticks left after it,
+        for a frame whose first fine tick is ``phase`` modulo the ADC period,
+        with ``glitch_left`` (per environment) glitch ticks carried in. They
+        repeat: the plans of every phase are made once."""
+        T = self._ticks
+        adc_ticks = tuple(range(-phase % self._adc_every, T, self._adc_every))
+        # Each environment's spans, env-major: the held value's and each sample's.
+        holds = np.tile(np.diff((0,) + adc_ticks + (T,)), self._envs) if adc_ticks else T
+        glitch_left = np.array(glitch_left, dtype=float).astype(int)
+        tick = np.arange(T)
+        on = tick < np.minimum(glitch_left, T)[:, None]
         for i in adc_ticks:
-            glitch[i:i + self._glitch_ticks] = self._glitch_v
-        if adc_ticks:
-            glitch_left = max(adc_ticks[-1] + self._glitch_ticks - N, 0)
-        else:
-            glitch_left = max(glitch_left - N, 0)
+            on |= (tick >= i) & (tick < i + self._glitch_lengths[:, None])
+        glitch = np.where(on, self._glitch_v[:, None], 0.0).reshape(-1)
         glitch.flags.writeable = False  # shared by every update of the plan
-        return adc_ticks, glitch, glitch_left
+        if adc_ticks:
+            glitch_left = np.maximum(adc_ticks[-1] + self._glitch_lengths - T, 0)
+        else:
+            glitch_left = np.maximum(glitch_left - T, 0)
+        return adc_ticks, holds, glitch, glitch_left.astype(float)
 
     def _adc(self, gauges, phi, t):
         """Sample, rotate into the sensor frame, offset, quantize, calibrate:
-        ``_adc_reference`` on Python floats (the same IEEE operations)."""
-        c = self._config
-        cos, sin = float(np.cos(phi)), float(np.sin(phi))
-        fx, fy, tz = gauges.tolist()
-        wrench = (cos * fx + sin * fy + (c.offset_n + c.offset_drift_n_per_s * t),
-                  -sin * fx + cos * fy, tz)
-        volts = []
-        for w, (lsb, lowest, highest) in zip(wrench, self._adc_channels):
-            try:
-                count = float(math.floor(w / lsb + 0.5))
-            except (ValueError, OverflowError):  # NaN or inf: numpy's way
-                return self._adc_reference(gauges, phi, t)
+        the held volts [env] of ``gauges`` (flat [env, channel]) at tip angles
+        ``phi`` [env] and time ``t``."""
+        fx, fy, tz = gauges[0::3], gauges[1::3], gauges[2::3]
+        cos, sin = np.cos(phi), np.sin(phi)
+        offset = self._offset + self._drift * t if self._drifts else self._offset
+        fx_wrench = cos * fx + sin * fy + offset
+        if self._fx_passes_through:
+            # Fx alone: its count is the held value whenever the other
+            # channels are finite, i.e. when fx_wrench and tz are (then their
+            # dot product is finite, or overflows: the check below is exact
+            # either way).
+            lsb, lowest, highest = self._fx_channel
+            counts = np.minimum(np.maximum(np.floor(fx_wrench / lsb + self._half), lowest),
+                                highest)
+            held = counts * lsb / self._scale
+            finite = math.isfinite(fx_wrench.dot(tz))
+        else:
+            wrench = np.empty(len(gauges))
+            wrench[0::3] = fx_wrench
+            wrench[1::3] = -sin * fx + cos * fy
+            wrench[2::3] = tz
+            lsb, lowest, highest = self._adc_channels
             # Clip to the ADC's counts (whole numbers, so after the floor).
-            volts.append((lowest if count < lowest else highest if count > highest
-                          else count) * lsb)
-        if self._cal_row0_unit:
-            # Row 0 of the calibration is [1, 0, 0]: the product is the Fx
-            # value exactly (the other terms are signed zeros: finite counts).
-            return volts[0] / c.output_scale_n_per_v
-        return float(self._cal.dot(np.array(volts))[0]) / c.output_scale_n_per_v
+            counts = np.minimum(np.maximum(np.floor(wrench / lsb + 0.5), lowest), highest)
+            held = self._calibrate(counts * lsb)[0::3] / self._scale
+            # NaN in any channel carries into held; inf is clipped.
+            finite = math.isfinite(held.dot(held))
+        if not finite:
+            # A sample that is not finite (a diverged environment) goes through
+            # the numpy-scalar ADC, as the single sensor's did: the numbers
+            # are the same either way, but which NaN comes out (its sign)
+            # depends on the form of the arithmetic.
+            suspect = fx_wrench + tz if self._fx_passes_through else held
+            for env in np.flatnonzero(~np.isfinite(suspect)):
+                held[env] = self._adc_reference(gauges[3 * env:3 * env + 3], phi[env], t, env)
+        return held
 
-    def _adc_reference(self, gauges, phi, t):
-        """The ADC in numpy, as first written."""
-        c = self._config
+    def _adc_reference(self, gauges, phi, t, env=0):
+        """The ADC of environment ``env`` in numpy, as first written, on one
+        sample: the same IEEE operations as ``_adc`` (with numpy scalars)."""
         fx, fy, tz = gauges
         cos, sin = np.cos(phi), np.sin(phi)
         wrench = np.array([cos * fx + sin * fy, -sin * fx + cos * fy, tz])
-        wrench[0] += c.offset_n + c.offset_drift_n_per_s * t
-        counts = np.clip(np.floor(wrench / self._lsb + 0.5),
-                         -self._full / self._lsb, self._full / self._lsb - 1)
-        return float((self._cal @ (counts * self._lsb))[0]) / c.output_scale_n_per_v
+        wrench[0] += self._offset[env] + self._drift[env] * t
+        lsb = self._lsb[env]
+        counts = np.clip(np.floor(wrench / lsb + 0.5), self._lowest[env], self._highest[env])
+        return float((self._cal[env] @ (counts * lsb))[0]) / self._scale[env]
 
     def _update(self, context, state):
-        nx, N = self._nx, self._ticks
+        T = self._ticks
         internal = context.get_discrete_state(self._internal).value()
-        x0 = internal[:nx]
-        held, glitch_left = internal[nx], int(internal[nx + 1])
-        xo0 = internal[nx + 2:nx + 4]
+        x0, held = internal[self._gauge_field], internal[self._held_field]
+        xo0 = internal[self._output_field]
         u = self._wrench.Eval(context)
         noise = self._noise.Eval(context) * self._noise_gain
         t0 = context.get_time()
-        first_tick = round(t0 * self._fine_rate)
-        key = (first_tick % self._adc_every, glitch_left)
+        key = (round(t0 * self._fine_rate) % self._adc_every,
+               *internal[self._glitch_field].tolist())
         plan = self._plans.get(key)
         if plan is None:
-            plan = self._plans[key] = self._plan(*key)
-        adc_ticks, glitch, glitch_left = plan
-        # The DAC over the frame: the held value, replaced at each ADC tick,
+            plan = self._plans[key] = self._plan(key[0], key[1:])
+        adc_ticks, holds, glitch, glitch_left = plan
+        P, L, U = self._gauge_filter
+        E, H, F, G = self._output_stage
+        # The DAC over the frame: the held value, replaced at each ADC tick by
+        # its sample (values: each environment's, env-major, one per span),
         # plus the update glitch (glitch + held is held + glitch: commutative).
-        dac = glitch + held
+        values = held
         if adc_ticks:
-            phi = self._tip.Eval(context)[2]
-            P, L, U, C = self._gauge_P, self._gauge_L, self._gauge_U, self._gauge_C
-            for i in adc_ticks:
-                x_i = P[i].dot(x0) + L[i].dot(noise) + U[i].dot(u)
-                held = self._adc(C.dot(x_i), phi, t0 + i * self._fine_period)
-                np.add(glitch[i:], held, out=dac[i:])
-        xo_end = self._out_E.dot(xo0) + self._out_H.dot(dac)
-        x_end = self._gauge_P[N].dot(x0) + self._gauge_L[N].dot(noise) + self._gauge_U[N].dot(u)
-        state.get_mutable_value(self._voltage)[0] = self._out_C.dot(xo_end)
-        np.add(self._out_F.dot(xo0), self._out_G.dot(dac), out=state.get_mutable_value(self._frame))
+            spans = len(adc_ticks) + 1
+            values = held.repeat(spans)
+            phi = self._tip.Eval(context)[2::6]
+            for span, i in enumerate(adc_ticks, 1):
+                x_i = P[i](x0) + L[i](noise) + U[i](u)
+                values[span::spans] = self._adc(self._gauges(x_i), phi,
+                                                t0 + i * self._fine_period)
+            held = values[spans - 1::spans]
+        dac = glitch + values.repeat(holds)
         updated = state.get_mutable_value(self._internal)
-        updated[:nx] = x_end
-        updated[nx] = held
-        updated[nx + 1] = glitch_left
-        updated[nx + 2:] = xo_end
+        x_end = updated[self._gauge_field]
+        np.add(P[T](x0), L[T](noise), out=x_end)
+        np.add(x_end, U[T](u), out=x_end)
+        updated[self._held_field] = held
+        updated[self._glitch_field] = glitch_left
+        xo_end = updated[self._output_field]
+        np.add(E(xo0), H(dac), out=xo_end)
+        self._output(xo_end, out=state.get_mutable_value(self._voltage))
+        np.add(F(xo0), G(dac), out=state.get_mutable_value(self._frame))
+
+
+def _products(matrices):
+    """x -> M x for each environment's matrix M, ``matrices`` [env, row,
+    col]: x flat [env, col] gives M x flat [env, row] (into ``out`` if
+    given). One BLAS gemv per environment (a dot for one row), the call the
+    single sensor made: for one environment ``M.dot`` itself (so for N = 1
+    the update's arrays and calls are the single sensor's), for N
+    np.matvec on the [env, col] view."""
+    if len(matrices) == 1:
+        return matrices[0].dot
+    n, rows, cols = matrices.shape
+
+    def times(x, out=None):
+        return np.matvec(matrices, x.reshape(n, cols),
+                         out=None if out is None else out.reshape(n, rows)).reshape(-1)
+    return times
 
 
 def noise_input_gain(config: ForceSensorConfig):
     """Standard deviation of the white gauge noise per fine tick such that
     the analog filter's output has ``noise_std`` times ``noise_scale`` (from
     the energy of the filter's impulse response at the fine rate)."""
-    A, B, C, D = discretize_analog(
-        *butterworth_analog(config.analog_cutoff_hz, config.analog_order), config.fine_period)
-    _, (h,) = signal.dimpulse((A, B, C, D, config.fine_period),
-                              n=int(20 * config.fine_rate_hz / config.analog_cutoff_hz))
-    energy = float(np.sum(np.asarray(h)[:, 0] ** 2))
+    energy = _impulse_energy(config.analog_cutoff_hz, config.analog_order, config.fine_rate_hz)
     return config.noise_scale * np.asarray(config.noise_std) / np.sqrt(energy)
 
 
-def AddForceSensor(builder: DiagramBuilder, config: ForceSensorConfig, *, name="force_sensor"):
-    """Adds the FS6-120A and its gauge-noise source as the sub-diagram
-    ``name``; returns it. Ports: ``wrench`` (input, 3: world [Fx, Fy, Tz] on
-    the tip, N and N m), ``tip_state`` (input, 6), ``voltage`` (output, 1, V)
-    and ``voltage_frame`` (output, ticks per 1 ms frame, V). The noise source
-    is named ``<name>_gauge_noise`` (its seed derives from that name)."""
+@functools.lru_cache(maxsize=256)
+def _impulse_energy(cutoff_hz, order, fine_rate_hz):
+    """The energy of the analog filter's impulse response at the fine rate
+    (a float; made once per filter, as every environment of an ensemble asks)."""
+    fine_period = 1.0 / fine_rate_hz
+    A, B, C, D = discretize_analog(*butterworth_analog(cutoff_hz, order), fine_period)
+    _, (h,) = signal.dimpulse((A, B, C, D, fine_period), n=int(20 * fine_rate_hz / cutoff_hz))
+    return float(np.sum(np.asarray(h)[:, 0] ** 2))
+
+
+def AddForceSensor(builder: DiagramBuilder, config, *, name="force_sensor"):
+    """Adds the FS6-120A and its gauge-noise sources as the sub-diagram
+    ``name``, for one environment per config (``config``: one
+    :class:`ForceSensorConfig` or a sequence of N); returns it. Ports,
+    env-major: ``wrench`` (input, 3 N: world [Fx, Fy, Tz] on the tip, N and
+    N m), ``tip_state`` (input, 6 N), ``voltage`` (output, N, V) and
+    ``voltage_frame`` (output, ticks per 1 ms frame x N, V). Each
+    environment has its own noise source, seeded from its name: for one
+    environment ``<name>_gauge_noise``, for N ``<name>_gauge_noise@<i>``
+    (environment i's), multiplexed into the sensor."""
     def build(inner):
         sensor = inner.AddNamedSystem(name, ForceSensor(config))
-        noise = inner.AddNamedSystem(
-            f"{name}_gauge_noise",
-            RandomSource(RandomDistribution.kGaussian, 3 * sensor.ticks_per_frame, CONTROL_PERIOD))
-        inner.Connect(noise.get_output_port(), sensor.GetInputPort("gauge_noise"))
+        n, size = sensor.num_envs, 3 * sensor.ticks_per_frame
+        names = [f"{name}_gauge_noise"] if n == 1 else [
+            f"{name}_gauge_noise@{i}" for i in range(n)]
+        sources = [inner.AddNamedSystem(source, RandomSource(
+            RandomDistribution.kGaussian, size, CONTROL_PERIOD)) for source in names]
+        if n == 1:
+            inner.Connect(sources[0].get_output_port(), sensor.GetInputPort("gauge_noise"))
+        else:
+            mux = inner.AddNamedSystem(f"{name}_gauge_noise_mux", Multiplexer([size] * n))
+            for i, source in enumerate(sources):
+                inner.Connect(source.get_output_port(), mux.get_input_port(i))
+            inner.Connect(mux.get_output_port(), sensor.GetInputPort("gauge_noise"))
         return {port: sensor.GetInputPort(port) for port in ("wrench", "tip_state")} | {
             port: sensor.GetOutputPort(port) for port in ("voltage", "voltage_frame")}
     return AddSubdiagram(builder, name, build)
