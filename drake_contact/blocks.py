@@ -10,6 +10,8 @@ other system: ``block.GetInputPort("wrench")``, ``block.GetOutputPort("voltage")
 
 from pydrake.systems.framework import DiagramBuilder, InputPort
 
+from drake_contact.errors import ScenarioError
+
 
 def AddSubdiagram(builder: DiagramBuilder, name: str, build):
     """Adds the sub-diagram ``name`` made by ``build(inner_builder)``.
@@ -32,6 +34,18 @@ def AddSubdiagram(builder: DiagramBuilder, name: str, build):
     diagram = inner.Build()
     diagram.set_name(name)
     return builder.AddSystem(diagram)
+
+
+def environment_configs(config, kind, prefix) -> list:
+    """A system's configs, one per environment it serves: ``[config]`` for
+    one ``kind`` instance, the list for a sequence of them (ScenarioError
+    naming ``prefix`` when it is empty)."""
+    if isinstance(config, kind):
+        return [config]
+    configs = list(config)
+    if not configs:
+        raise ScenarioError(f"{prefix}: no configs (one per environment, at least one)")
+    return configs
 
 
 class Layout:

@@ -352,25 +352,15 @@ def simulate(diagram, loggers: SignalLoggers, *, progress=None, realtime_rate=0.
         loggers.check_spool_space(scenario.simulation.duration)
     else:
         check_logs_fit(loggers, scenario.simulation.duration)
-    simulator = Simulator(diagram)
-    simulator.set_target_realtime_rate(realtime_rate)
-    context = simulator.get_mutable_context()
-    visualizers = start_recording(diagram, live=live) if meshcat is not None else []
-    SeedNoise(diagram, context)
     duration = scenario.simulation.duration
+    simulator, context = _seeded_simulator(diagram, loggers, duration)
+    simulator.set_target_realtime_rate(realtime_rate)
+    visualizers = start_recording(diagram, live=live) if meshcat is not None else []
     force_limit = scenario.simulation.force_limit
-    loggers.reserve(int(round(duration / CONTROL_PERIOD)) + 1)
     status, message = "completed", ""
     start = time.perf_counter()
     try:
-        simulator.Initialize()
-        chunks = int(np.ceil(duration / CHUNK_S - RATIO_TOLERANCE))
-        for k in range(1, chunks + 1):
-            # Whole multiples of the chunk (no accumulated rounding), ending
-            # exactly at the duration.
-            t = duration if k == chunks else k * CHUNK_S
-            simulator.AdvanceTo(t)
-            loggers.drain(context)
+        for t in _advance(simulator, context, loggers, duration):
             _check_divergence(loggers, force_limit)
             if progress is not None:
                 progress(t, duration, time.perf_counter() - start)
@@ -386,9 +376,39 @@ def simulate(diagram, loggers: SignalLoggers, *, progress=None, realtime_rate=0.
     wall_s = time.perf_counter() - start
     if meshcat is not None:
         finish_recording(visualizers, meshcat, record)
-    log = loggers.collect(context)
+    return _result(scenario, loggers.collect(context), status, message, wall_s, simulator)
+
+
+def _seeded_simulator(diagram, loggers, duration):
+    """A Simulator of ``diagram`` with its stations' noise seeded
+    (:func:`SeedNoise`) and the logs' room for ``duration``; returns it and
+    its context."""
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    SeedNoise(diagram, context)
+    loggers.reserve(int(round(duration / CONTROL_PERIOD)) + 1)
+    return simulator, context
+
+
+def _advance(simulator, context, loggers, duration):
+    """Initializes ``simulator`` and advances it to ``duration`` in chunks
+    of CHUNK_S (whole multiples of it, no accumulated rounding, ending
+    exactly at the duration), draining the logs after each; yields each
+    chunk's end time."""
+    simulator.Initialize()
+    chunks = int(np.ceil(duration / CHUNK_S - RATIO_TOLERANCE))
+    for k in range(1, chunks + 1):
+        t = duration if k == chunks else k * CHUNK_S
+        simulator.AdvanceTo(t)
+        loggers.drain(context)
+        yield t
+
+
+def _result(scenario, log, status, message, wall_s, simulator) -> RunResult:
+    """The RunResult of a run that ended with ``status``: its log (cut at
+    the first bad sample of a diverged run) and metrics."""
     if status == "diverged":
-        log = _truncate_at_divergence(log, force_limit)
+        log = _truncate_at_divergence(log, scenario.simulation.force_limit)
     metrics = compute_metrics(scenario, log, wall_s)
     metrics["status"] = status
     if "ended_safe_log" in metrics:
@@ -444,20 +464,12 @@ def simulate_ensemble(scenarios, *, progress=None) -> list:
     diagram, loggers = MakeEnsembleRunDiagram(scenarios)
     duration = max(s.simulation.duration for s in scenarios)
     check_logs_fit(loggers, duration)
-    simulator = Simulator(diagram)
-    context = simulator.get_mutable_context()
-    SeedNoise(diagram, context)
-    loggers.reserve(int(round(duration / CONTROL_PERIOD)) + 1)
+    simulator, context = _seeded_simulator(diagram, loggers, duration)
     running = set(range(len(scenarios)))
     stopped = {}
     start = time.perf_counter()
     try:
-        simulator.Initialize()
-        chunks = int(np.ceil(duration / CHUNK_S - RATIO_TOLERANCE))
-        for k in range(1, chunks + 1):
-            t = duration if k == chunks else k * CHUNK_S
-            simulator.AdvanceTo(t)
-            loggers.drain(context)
+        for t in _advance(simulator, context, loggers, duration):
             for env in sorted(running):
                 try:
                     _check_divergence(loggers, scenarios[env].simulation.force_limit, env)
@@ -480,16 +492,7 @@ def simulate_ensemble(scenarios, *, progress=None) -> list:
         samples = int(round(scenario.simulation.duration / CONTROL_PERIOD)) + 1
         log = {key: value[:samples] for key, value in log.items()}
         status, message = stopped.get(env, ("completed", ""))
-        if status == "diverged":
-            log = _truncate_at_divergence(log, scenario.simulation.force_limit)
-        metrics = compute_metrics(scenario, log, wall_s)
-        metrics["status"] = status
-        if "ended_safe_log" in metrics:
-            metrics["ended_safe"] = status == "completed" and metrics.pop("ended_safe_log")
-        if message:
-            metrics["message"] = message
-        results.append(RunResult(log=log, metrics=metrics, status=status, message=message,
-                                 wall_s=wall_s, simulator=simulator))
+        results.append(_result(scenario, log, status, message, wall_s, simulator))
     return results
 
 

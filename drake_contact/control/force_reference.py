@@ -37,6 +37,7 @@ from collections.abc import Sequence
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
+from drake_contact.blocks import environment_configs
 from drake_contact.plant.arm import (
     CONTROL_PERIOD, RATIO_TOLERANCE, TIME_TOLERANCE_S, DeclareSampledUpdate, is_sample_time)
 from drake_contact.errors import ScenarioError
@@ -92,14 +93,7 @@ class ForceReferenceConfig:
 
 
 def _configs(config):
-    """[config] for one config, the list for a sequence of them (one per
-    environment)."""
-    if isinstance(config, ForceReferenceConfig):
-        return [config]
-    configs = list(config)
-    if not configs:
-        raise ScenarioError("force_reference: no configs (one per environment, at least one)")
-    return configs
+    return environment_configs(config, ForceReferenceConfig, "force_reference")
 
 
 class ForceSchedule:

@@ -48,6 +48,7 @@ import yaml
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Demultiplexer
 
+from drake_contact.blocks import environment_configs
 from drake_contact.plant.arm import CONTROL_PERIOD, DeclareSampledUpdate, is_sample_time
 from drake_contact.errors import ScenarioError
 from drake_contact.resources import models_dir
@@ -151,14 +152,7 @@ def _sigma(s):
 
 
 def _configs(config):
-    """[config] for one config, the list for a sequence of them (one per
-    environment)."""
-    if isinstance(config, NnCompensatorConfig):
-        return [config]
-    configs = list(config)
-    if not configs:
-        raise ScenarioError("controller.nn: no configs (one per environment, at least one)")
-    return configs
+    return environment_configs(config, NnCompensatorConfig, "controller.nn")
 
 
 _ROBUST_FIELDS = ("leakage", "e_modification", "dead_zone_n", "normalized", "weight_bound")
