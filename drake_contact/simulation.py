@@ -360,7 +360,7 @@ def simulate(diagram, loggers: SignalLoggers, *, progress=None, realtime_rate=0.
     status, message = "completed", ""
     start = time.perf_counter()
     try:
-        for t in _advance(simulator, context, loggers, duration):
+        for t in advance_in_chunks(simulator, context, loggers, duration):
             _check_divergence(loggers, force_limit)
             if progress is not None:
                 progress(t, duration, time.perf_counter() - start)
@@ -390,7 +390,7 @@ def _seeded_simulator(diagram, loggers, duration):
     return simulator, context
 
 
-def _advance(simulator, context, loggers, duration):
+def advance_in_chunks(simulator, context, loggers, duration):
     """Initializes ``simulator`` and advances it to ``duration`` in chunks
     of CHUNK_S (whole multiples of it, no accumulated rounding, ending
     exactly at the duration), draining the logs after each; yields each
@@ -469,7 +469,7 @@ def simulate_ensemble(scenarios, *, progress=None) -> list:
     stopped = {}
     start = time.perf_counter()
     try:
-        for t in _advance(simulator, context, loggers, duration):
+        for t in advance_in_chunks(simulator, context, loggers, duration):
             for env in sorted(running):
                 try:
                     _check_divergence(loggers, scenarios[env].simulation.force_limit, env)

@@ -35,7 +35,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
 from drake_contact.simulation import (
-    MakeRunDiagram, simulate, simulate_ensemble, simulate_scenario)
+    MakeRunDiagram, advance_in_chunks, simulate, simulate_ensemble, simulate_scenario)
 from drake_contact.diagram import MakeFloorDiagram, leaf_systems
 from drake_contact.errors import SimulationDiverged
 from drake_contact.plant.arm import AddArmPlant
@@ -447,14 +447,15 @@ def _contexts(stats, owner):
 LIBRARY_LAYERS = ("plant", "sensing", "control", "identification")
 
 
-def attribute_profile(stats: dict, diagram, root_key):
+def attribute_profile(stats: dict, diagram, root_key, more_roots=()):
     """Splits a cProfile run of ``simulate`` over the diagram's Python systems.
 
     ``stats`` is ``pstats.Stats(...).stats`` of a profile taken with
     ``builtins=False`` (so that a Python callback that Drake calls from
     inside an ``Eval`` made by another Python callback has that callback,
     not the C ``Eval``, as its recorded caller); ``root_key`` is the key of
-    the profiled ``simulate`` function. Returns ({group: (seconds, calls)},
+    the profiled ``simulate`` function (``more_roots``: the keys of the
+    functions it runs the simulator through). Returns ({group: (seconds, calls)},
     {group: [systems]}) with a group per Python system class.
 
     The rule. A function belongs to a system class if it is defined in the
@@ -489,7 +490,8 @@ def attribute_profile(stats: dict, diagram, root_key):
     owner = {key: next(iter(classes)) for key, classes in claims.items() if len(classes) == 1}
     owner = {key: cls for key, cls in owner.items() if key in stats}
     weights = _contexts(stats, owner)
-    weights[root_key] = {None: 1.0}
+    for key in (root_key, *more_roots):
+        weights[key] = {None: 1.0}
     seconds, calls = defaultdict(float), defaultdict(float)
     for f, cls in owner.items():
         _, nc, _, ct, callers = stats[f]
@@ -519,8 +521,12 @@ def profile_scenario(scenario: Scenario, *, name=None) -> ProfileResult:
     _completed(profiler.runcall(simulate, diagram, loggers))
     stats = pstats.Stats(profiler).stats
     root_key = _profile_key(simulate.__code__)
+    # The chunk loop (simulation.advance_in_chunks) is simulate's own: its time
+    # outside Drake counts to the simulator, its callees are outside rows.
+    chunks = _profile_key(advance_in_chunks.__code__)
+    roots = [root_key] + ([chunks] if chunks in stats else [])
     steps = int(round(scenario.simulation.duration / scenario.arm.time_step))
-    costs, members = attribute_profile(stats, diagram, root_key)
+    costs, members = attribute_profile(stats, diagram, root_key, roots[1:])
     us = 1e6 / steps
     systems = []
     for cls, (seconds, calls) in costs.items():
@@ -528,7 +534,8 @@ def profile_scenario(scenario: Scenario, *, name=None) -> ProfileResult:
         systems.append(SystemCost(", ".join(paths), cls.__qualname__, len(paths),
                                   seconds * us, calls / steps))
     systems.sort(key=lambda s: -s.us_per_step)
-    _, _, root_tt, root_ct, _ = stats[root_key]
+    _, _, _, root_ct, _ = stats[root_key]
+    root_tt = sum(stats[key][2] for key in roots)
     system_keys = set().union(*(class_code_keys(cls) for cls in members))
     outside = defaultdict(float)
     library = [str(Path(__file__).resolve().parents[1] / layer) for layer in LIBRARY_LAYERS]
@@ -537,14 +544,15 @@ def profile_scenario(scenario: Scenario, *, name=None) -> ProfileResult:
         # Library functions that Drake calls (e.g. the sampled-update
         # wrapper of plant/arm.py) run inside AdvanceTo; the systems they
         # enter already count their time.
-        if f in system_keys:
+        if f in system_keys or f in roots:
             continue
+        from_root = [key for key in roots if key in callers]
         if f[0].startswith(tuple(library)):
-            if root_key in callers:
+            if from_root:
                 glue_s += stats[f][2]  # its own time is the simulator's glue
             continue
-        if root_key in callers and f not in system_keys:
-            us_f = callers[root_key][3] * us
+        if from_root:
+            us_f = sum(callers[key][3] for key in from_root) * us
             label = f"{Path(f[0]).stem}.{f[2]}()" if us_f >= OUTSIDE_ROW_MIN_US else "other"
             outside[label] += us_f
     outside_us = sorted(outside.items(), key=lambda item: (item[0] == "other", -item[1]))
