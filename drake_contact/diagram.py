@@ -26,6 +26,7 @@ it is logged under). A new signal is one ``signals.export(...)`` line here.
 """
 
 import dataclasses as dc
+import functools
 import re
 import zlib
 
@@ -237,7 +238,7 @@ def _add_controller(builder, scenarios, states, measured):
         for (reference_in, reference_out), c, source, p in zip(views, contact, sources, ports):
             builder.Connect(c, reference_in["contact_info"])
             source["force_desired"] = p["force_desired"] = reference_out["force_desired"]
-    for i, (own, source) in enumerate(zip(inputs, sources)):
+    for own, source in zip(inputs, sources):
         for name, port in own.items():
             if name in source:
                 builder.Connect(source[name], port)
@@ -343,15 +344,11 @@ def _add_physics(builder, scenario, state_port, joint_inertias) -> _Physics:
     return _Physics(tip, wall, friction, _FaultPorts(clock, active), external.get_output_port())
 
 
-_KINEMATICS_MODEL = []
-
-
+@functools.cache
 def _kinematics_model():
     """The arm's standalone model, against which the tip kinematics' closed
     forms are checked (made once)."""
-    if not _KINEMATICS_MODEL:
-        _KINEMATICS_MODEL.append(MakeArmModel())
-    return _KINEMATICS_MODEL[0]
+    return MakeArmModel()
 
 
 def _apply_to_arms(builder, plant, ports):

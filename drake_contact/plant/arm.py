@@ -168,12 +168,8 @@ def AddArmPlant(builder: DiagramBuilder, config):
         MultibodyPlantConfig(time_step=configs[0].time_step, use_sampled_output_ports=False),
         builder)
     plant.set_name("plant")
-    if len(configs) == 1:
-        LoadArm(plant)
-        plant.Finalize()
-        plant.SetDefaultPositions(np.asarray(configs[0].initial_positions, dtype=float))
-        return plant, scene_graph
-    instances = [LoadArm(plant, prefix=f"env{i}") for i in range(len(configs))]
+    instances = ([LoadArm(plant)] if len(configs) == 1 else
+                 [LoadArm(plant, prefix=f"env{i}") for i in range(len(configs))])
     plant.Finalize()
     for instance, c in zip(instances, configs):
         plant.SetDefaultPositions(instance, np.asarray(c.initial_positions, dtype=float))
@@ -183,14 +179,9 @@ def AddArmPlant(builder: DiagramBuilder, config):
 def arm_instances(plant):
     """The arms' model instances of a plant :func:`AddArmPlant` made, in
     the order of their environments."""
-    found = [ModelInstanceIndex(i) for i in range(plant.num_model_instances())
-             if plant.GetModelInstanceName(ModelInstanceIndex(i)).split("::")[-1] == MODEL_NAME]
-    return sorted(found, key=lambda i: _env_index(plant.GetModelInstanceName(i)))
-
-
-def _env_index(name):
-    head = name.split("::")[0]
-    return int(head[3:]) if head.startswith("env") else 0
+    # AddArmPlant adds them in that order.
+    return [ModelInstanceIndex(i) for i in range(plant.num_model_instances())
+            if plant.GetModelInstanceName(ModelInstanceIndex(i)).split("::")[-1] == MODEL_NAME]
 
 
 def LoadArm(plant, prefix=""):
