@@ -1,0 +1,150 @@
+"""The arm-axis primitives give each environment, bit for bit, what its own
+Drake system gives it alone."""
+
+import numpy as np
+import pytest
+from pydrake import symbolic
+from pydrake.systems.primitives import AffineSystem, LinearSystem, MatrixGain
+
+from drake_contact.arm_axis import LinearSystemBank, StackedSymbolicSystem
+from drake_contact.errors import ScenarioError
+from drake_contact.sensing.estimator import _joint_filters
+from drake_contact.sensing.filters import butterworth_digital, differencing_filter_system
+
+
+def _station_filters(cutoff_hz):
+    b, a = butterworth_digital(cutoff_hz, 1000.0)
+    return {"joint_filters": _joint_filters(b, a, 1e-3),
+            "tip_rates": differencing_filter_system(b, a, 1e-3, channels=3)}
+
+
+def _step_alone(system, context, x, u):
+    if system.num_input_ports():
+        system.get_input_port().FixValue(context, u)
+    if x.size:
+        context.SetDiscreteState(x)
+        xn = np.array(system.EvalUniquePeriodicDiscreteUpdate(context).get_vector().value())
+    else:
+        xn = x
+    return xn.ravel(), np.array(system.get_output_port().Eval(context))
+
+
+def _compare(systems, steps=150, seed=0):
+    """Steps the bank and each system alone from the same states and
+    inputs; returns the number of values that differ."""
+    rng = np.random.default_rng(seed)
+    bank = LinearSystemBank(systems)
+    context = bank.CreateDefaultContext()
+    alone = [s.CreateDefaultContext() for s in systems]
+    k = systems[0].num_states() if hasattr(systems[0], "num_states") else 0
+    m = systems[0].get_input_port().size()
+    count = len(systems)
+    x = np.concatenate([c.get_discrete_state_vector().CopyToVector() if k else np.zeros(0)
+                        for c in alone])
+    differ = 0
+    for _ in range(steps):
+        u = rng.normal(scale=rng.choice([1e-3, 1.0, 1e3]), size=m * count)
+        bank.get_input_port().FixValue(context, u)
+        if k:
+            context.SetDiscreteState(x)
+            xn = np.array(bank.EvalUniquePeriodicDiscreteUpdate(context).get_vector().value())
+        y = np.array(bank.get_output_port().Eval(context))
+        p = systems[0].get_output_port().size()
+        for i, (s, c) in enumerate(zip(systems, alone)):
+            xi, yi = _step_alone(s, c, x[i * k:(i + 1) * k], u[i * m:(i + 1) * m])
+            differ += np.sum(yi != y[i * p:(i + 1) * p])
+            if k:
+                differ += np.sum(xi != xn.ravel()[i * k:(i + 1) * k])
+        if k:
+            x = xn.ravel()
+    return differ
+
+
+@pytest.mark.parametrize("count", [1, 2, 3, 16, 64])
+@pytest.mark.parametrize("name", ["joint_filters", "tip_rates"])
+def test_a_bank_of_the_estimators_filters_is_each_filter_alone(name, count):
+    # Each environment its own cutoff: the matrices differ per environment.
+    systems = [_station_filters(cutoff)[name] for cutoff in np.linspace(20.0, 60.0, count)]
+    assert _compare(systems) == 0
+
+
+@pytest.mark.parametrize("count", [1, 5])
+def test_a_bank_of_dense_systems_matrix_gains_and_affine_outputs_is_each_alone(count):
+    rng = np.random.default_rng(1)
+    dense = [LinearSystem(rng.normal(size=(9, 9)), rng.normal(size=(9, 4)),
+                          rng.normal(size=(5, 9)), rng.normal(size=(5, 4)), 1e-3)
+             for _ in range(count)]
+    gains = [MatrixGain(rng.normal(size=(3, 6))) for _ in range(count)]
+    affine = [AffineSystem(D=rng.normal(size=(3, 3)), y0=rng.normal(size=3))
+              for _ in range(count)]
+    assert _compare(dense) == 0
+    assert _compare(gains) == 0
+    assert _compare(affine) == 0
+
+
+def test_a_bank_has_direct_feedthrough_exactly_when_its_systems_do():
+    b, a = butterworth_digital(35.0, 1000.0)
+    rates = differencing_filter_system(b, a, 1e-3, channels=3)
+    joints = _joint_filters(b, a, 1e-3)
+    assert not rates.HasDirectFeedthrough(0, 0) and joints.HasDirectFeedthrough(0, 0)
+    assert not LinearSystemBank([rates, rates]).HasDirectFeedthrough(0, 0)
+    assert LinearSystemBank([joints, joints]).HasDirectFeedthrough(0, 0)
+
+
+def test_systems_of_different_shapes_cannot_share_a_bank():
+    b, a = butterworth_digital(35.0, 1000.0)
+    with pytest.raises(ScenarioError, match="share a structure"):
+        LinearSystemBank([_joint_filters(b, a, 1e-3),
+                          differencing_filter_system(b, a, 1e-3, channels=3)])
+
+
+def test_stacked_expressions_are_evaluated_as_alone():
+    rng = np.random.default_rng(2)
+    pieces, alone = [], []
+    for i in range(4):
+        t = symbolic.Variable("t")
+        u = symbolic.MakeVectorVariable(2, "u")
+        s = symbolic.MakeVectorVariable(1, "s")
+        gain = float(rng.uniform(0.5, 2.0))
+        dynamics = [symbolic.max(s[0] * gain + u[0] * t, -np.inf)]
+        output = [s[0] + u[1], symbolic.cos(u[0]) * gain]
+        pieces.append({"time": t, "input": u, "state": s, "dynamics": dynamics,
+                       "output": output})
+        from pydrake.systems.primitives import SymbolicVectorSystem
+        alone.append(SymbolicVectorSystem(time=t, state=s, input=u, dynamics=dynamics,
+                                          output=output, time_period=1e-3))
+    stacked = StackedSymbolicSystem(pieces, input_sizes=[1, 1], output_sizes=[1, 1],
+                                    time_period=1e-3)
+    context = stacked.CreateDefaultContext()
+    u = rng.normal(size=(4, 2))
+    state = rng.normal(size=4)
+    context.SetTime(0.37)
+    context.SetDiscreteState(state)
+    stacked.get_input_port().FixValue(context, np.concatenate([u[:, 0], u[:, 1]]))
+    y = np.array(stacked.get_output_port().Eval(context))
+    xn = np.array(stacked.EvalUniquePeriodicDiscreteUpdate(context).get_vector().value())
+    for i, system in enumerate(alone):
+        c = system.CreateDefaultContext()
+        c.SetTime(0.37)
+        c.SetDiscreteState([state[i]])
+        system.get_input_port().FixValue(c, u[i])
+        yi = np.array(system.get_output_port().Eval(c))
+        assert yi[0] == y[i] and yi[1] == y[4 + i]
+        assert system.EvalUniquePeriodicDiscreteUpdate(c).get_vector().value()[0] == xn[i]
+
+
+def test_a_bank_splits_its_output_field_major():
+    b, a = butterworth_digital(35.0, 1000.0)
+    systems = [_joint_filters(b, a, 1e-3) for _ in range(3)]
+    whole = LinearSystemBank(systems)
+    split = LinearSystemBank(systems, output_sizes=[3, 3])
+    u = np.arange(9.0)
+    y = []
+    for bank in (whole, split):
+        context = bank.CreateDefaultContext()
+        bank.get_input_port().FixValue(context, u)
+        y.append(np.array(bank.get_output_port().Eval(context)))
+    env_major = y[0].reshape(3, 6)
+    assert np.array_equal(y[1], np.concatenate([env_major[:, :3].ravel(), env_major[:, 3:].ravel()]))
+    with pytest.raises(ScenarioError, match="do not sum"):
+        LinearSystemBank(systems, output_sizes=[3, 2])
