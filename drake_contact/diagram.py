@@ -38,6 +38,7 @@ from pydrake.systems.primitives import (
     SymbolicVectorSystem)
 from pydrake.symbolic import Variable, floor, if_then_else
 
+from drake_contact.arm_axis import LinearSystemBank
 from drake_contact.control.force_reference import ForceReference
 from drake_contact.control.safety_supervisor import (
     SAFETY_STATES, STOP_REASONS, SafetySupervisor)
@@ -129,44 +130,174 @@ class _Env:
         self.builder.Connect(source, destination)
 
 
-def _add_role(builder, name, count, *, per_env=None, shared=None):
-    """Adds one role of the station for ``count`` environments: ``per_env``,
-    one system per environment (named ``name`` in a one-environment
-    station, ``<name>@<i>`` otherwise), or ``shared``, one system serving
-    all of them on arm-axis ports (each port ``count`` times an
-    environment's size, environment i's values at ``[k i, k (i + 1))``),
-    behind a Multiplexer per input (``<name>_<port>_in``) and a
-    Demultiplexer per vector output (``<name>_<port>_out``).
+class _Wiring:
+    """The station's DiagramBuilder, for systems that serve all N
+    environments at once: environment i wires to a shared system through
+    its views (:meth:`roles`), and the wiring connects shared systems to
+    one another directly when every environment's connection runs between
+    the same two ports in the arm axis's order; otherwise a Demultiplexer
+    splits a shared output (made when an environment first needs its
+    part) and a Multiplexer gathers a shared input (at :meth:`finish`).
+    Every other call goes to the builder."""
 
-    Returns (per environment: (the role's input ports by name, its vector
-    output ports by name), to wire it as a single system; the added
-    systems)."""
-    if shared is None:
-        added = [builder.AddNamedSystem(name if count == 1 else f"{name}@{i}", system)
-                 for i, system in enumerate(per_env)]
-        return [(_input_ports(s), _vector_outputs(s)) for s in added], added
-    return _role_views(builder, name, count, builder.AddNamedSystem(name, shared)), [shared]
+    def __init__(self, builder, count):
+        self.builder, self.count = builder, count
+        self._axes, self._gathers = {}, []
+
+    def __getattr__(self, name):
+        return getattr(self.builder, name)
+
+    def roles(self, name, system):
+        """``system`` added as ``name`` (``None``: already added) to serve
+        all environments; returns each environment's view of it (the
+        system itself in a one-environment station)."""
+        if name is not None:
+            system = self.builder.AddNamedSystem(name, system)
+        if self.count == 1:
+            return [system]
+        return [_Role(self, system, i) for i in range(self.count)]
+
+    def axis(self, port):
+        """The arm-axis output ``port`` (each environment's views come from it)."""
+        key = (id(port.get_system()), int(port.get_index()))
+        if key not in self._axes:
+            self._axes[key] = _Axis(self, port)
+        return self._axes[key]
+
+    def gather(self, port):
+        """The arm-axis input ``port``, fed environment by environment."""
+        key = (id(port.get_system()), int(port.get_index()))
+        found = [g for g in self._gathers if g.key == key]
+        if found:
+            return found[0]
+        gather = _Gather(self, port, key)
+        self._gathers.append(gather)
+        return gather
+
+    def resolve(self, source):
+        return source.axis.split(source.index) if isinstance(source, _View) else source
+
+    def Connect(self, source, destination):
+        if isinstance(destination, _Slot):
+            destination.gather.sources[destination.index] = source
+        else:
+            self.builder.Connect(self.resolve(source), destination)
+
+    def ExportOutput(self, source, name):
+        return self.builder.ExportOutput(self.resolve(source), name)
+
+    def combined(self, sources, name):
+        """One output port carrying ``sources`` (one per environment, in
+        order): their shared system's own port when they are its views in
+        order, else a Multiplexer ``name`` of them."""
+        first = sources[0]
+        if (isinstance(first, _View) and len(sources) == first.axis.count
+                and all(isinstance(s, _View) and s.axis is first.axis and s.index == i
+                        for i, s in enumerate(sources))):
+            return first.axis.port
+        mux = self.builder.AddNamedSystem(name, Multiplexer([first.size()] * len(sources)))
+        for i, source in enumerate(sources):
+            self.builder.Connect(self.resolve(source), mux.get_input_port(i))
+        return mux.get_output_port()
+
+    def finish(self):
+        """Connects every shared input its environments fed."""
+        for gather in self._gathers:
+            fed = [s for s in gather.sources if s is not None]
+            if not fed:
+                continue
+            if len(fed) != len(gather.sources):
+                raise ScenarioError(f"input '{gather.port.get_name()}' of a shared system is "
+                                    "fed in some environments only: they must share a structure")
+            self.builder.Connect(self.combined(gather.sources, gather.name), gather.port)
 
 
-def _role_views(builder, name, count, system):
-    """Per environment (its input ports by name, its vector output ports by
-    name) of ``system``, added to ``builder`` to serve ``count``
-    environments on arm-axis ports: a Multiplexer feeds each input, a
-    Demultiplexer splits each output."""
-    views = [({}, {}) for _ in range(count)]
-    for port_name, port in _input_ports(system).items():
-        mux = builder.AddNamedSystem(f"{name}_{port_name}_in",
-                                     Multiplexer([port.size() // count] * count))
-        builder.Connect(mux.get_output_port(), port)
-        for i in range(count):
-            views[i][0][port_name] = mux.get_input_port(i)
-    for port_name, port in _vector_outputs(system).items():
-        split = builder.AddNamedSystem(f"{name}_{port_name}_out",
-                                       Demultiplexer([port.size() // count] * count))
-        builder.Connect(port, split.get_input_port())
-        for i in range(count):
-            views[i][1][port_name] = split.get_output_port(i)
-    return views
+class _Axis:
+    """An output port carrying N environments' values (environment i's
+    ``size`` values at ``[size i, size (i + 1))``)."""
+
+    def __init__(self, wiring, port):
+        self.wiring, self.port, self.count = wiring, port, wiring.count
+        self.size = port.size() // self.count
+        self._split = None
+
+    def split(self, index):
+        if self._split is None:
+            name = f"{self.port.get_system().get_name()}_{self.port.get_name()}_envs"
+            self._split = self.wiring.builder.AddNamedSystem(
+                name, Demultiplexer([self.size] * self.count))
+            self.wiring.builder.Connect(self.port, self._split.get_input_port())
+        return self._split.get_output_port(index)
+
+
+class _View:
+    """Environment ``index``'s part of an :class:`_Axis`."""
+
+    def __init__(self, axis, index):
+        self.axis, self.index = axis, index
+
+    def size(self):
+        return self.axis.size
+
+
+class _Gather:
+    """An input port carrying N environments' values, fed one by one."""
+
+    def __init__(self, wiring, port, key):
+        self.port, self.key = port, key
+        self.sources = [None] * wiring.count
+        self.size = port.size() // wiring.count
+        self.name = f"{port.get_system().get_name()}_{port.get_name()}_envs"
+
+
+class _Slot:
+    """Environment ``index``'s part of a :class:`_Gather`."""
+
+    def __init__(self, gather, index):
+        self.gather, self.index = gather, index
+
+    def size(self):
+        return self.gather.size
+
+
+class _Role:
+    """Environment ``index``'s view of a system serving all environments:
+    its ports by name, as the system's own for one environment."""
+
+    def __init__(self, wiring, system, index):
+        self._wiring, self._system, self._index = wiring, system, index
+
+    def GetOutputPort(self, name):
+        return _View(self._wiring.axis(self._system.GetOutputPort(name)), self._index)
+
+    def GetInputPort(self, name):
+        return _Slot(self._wiring.gather(self._system.GetInputPort(name)), self._index)
+
+    def get_output_port(self):
+        return _View(self._wiring.axis(self._system.get_output_port()), self._index)
+
+    def get_input_port(self):
+        return _Slot(self._wiring.gather(self._system.get_input_port()), self._index)
+
+    def HasOutputPort(self, name):
+        return self._system.HasOutputPort(name)
+
+    def HasInputPort(self, name):
+        return self._system.HasInputPort(name)
+
+    def input_ports(self):
+        return {name: self.GetInputPort(name) for name in _input_ports(self._system)}
+
+    def vector_outputs(self):
+        return {name: self.GetOutputPort(name) for name in _vector_outputs(self._system)}
+
+
+def _inputs_of(role):
+    return role.input_ports() if isinstance(role, _Role) else _input_ports(role)
+
+
+def _outputs_of(role):
+    return role.vector_outputs() if isinstance(role, _Role) else _vector_outputs(role)
 
 
 def _input_ports(system):
@@ -208,42 +339,41 @@ def _add_controller(builder, scenarios, states, measured):
     config = scenario.controller
     declared = controller_declaration(config.name)
     options = [s.controller.factory_options() for s in scenarios]
-    if len(scenarios) > 1 and declared.ensemble:
-        views, systems = _add_role(builder, "controller", len(scenarios),
-                                   shared=MakeController(config.name, options,
-                                                         count=len(scenarios)))
+    count = len(scenarios)
+    if count > 1 and declared.ensemble:
+        systems = [MakeController(config.name, options, count=count)]
+        roles = builder.roles("controller", systems[0])
     else:
-        views, systems = _add_role(builder, "controller", len(scenarios), per_env=[
-            MakeController(config.name, o) for o in options])
-    inputs = [view[0] for view in views]
-    ports = [dict(view[1]) for view in views]
+        systems = roles = [builder.AddNamedSystem("controller" if count == 1 else f"controller@{i}",
+                                                  MakeController(config.name, o))
+                           for i, o in enumerate(options)]
+    inputs = [_inputs_of(r) for r in roles]
+    ports = [_outputs_of(r) for r in roles]
     sources = [dict(m.items()) | {"plant_state": state} for m, state in zip(measured, states)]
     contact = [p.get("contact_info") for p in ports]
     if "contact_info" not in ports[0] and ("force_desired" in inputs[0] or scenario.identifiers):
-        views, _ = _add_role(builder, "contact_detector", len(scenarios), per_env=[
-            ContactDetector() for _ in scenarios])
-        for (detector_in, detector_out), m, p in zip(views, measured, ports):
-            builder.Connect(m.force_filtered, detector_in["force"])
-            builder.Connect(m.tip_pose_measured, detector_in["tip_pose"])
-            p["mode"] = detector_out["mode"]
-        contact = [view[1]["contact_info"] for view in views]
+        detectors = [builder.AddNamedSystem(
+            "contact_detector" if count == 1 else f"contact_detector@{i}", ContactDetector())
+            for i in range(count)]
+        for detector, m, p in zip(detectors, measured, ports):
+            builder.Connect(m.force_filtered, detector.GetInputPort("force"))
+            builder.Connect(m.tip_pose_measured, detector.GetInputPort("tip_pose"))
+            p["mode"] = detector.GetOutputPort("mode")
+        contact = [d.GetOutputPort("contact_info") for d in detectors]
     if "force_desired" in inputs[0]:
         configs = [s.force_reference for s in scenarios]
-        if len(scenarios) > 1:
-            views, _ = _add_role(builder, "force_reference", len(scenarios),
-                                 shared=ForceReference(configs))
-        else:
-            views, _ = _add_role(builder, "force_reference", 1,
-                                 per_env=[ForceReference(configs[0])])
-        for (reference_in, reference_out), c, source, p in zip(views, contact, sources, ports):
-            builder.Connect(c, reference_in["contact_info"])
-            source["force_desired"] = p["force_desired"] = reference_out["force_desired"]
+        references = builder.roles("force_reference",
+                                   ForceReference(configs if count > 1 else configs[0]))
+        for reference, c, source, p in zip(references, contact, sources, ports):
+            builder.Connect(c, reference.GetInputPort("contact_info"))
+            source["force_desired"] = p["force_desired"] = reference.GetOutputPort(
+                "force_desired")
     for own, source in zip(inputs, sources):
         for name, port in own.items():
             if name in source:
                 builder.Connect(source[name], port)
             elif name in STATION_ACTION_INPUTS:
-                if len(scenarios) > 1:
+                if count > 1:
                     raise ScenarioError(f"controller '{config.name}' reads {name} from outside "
                                         "the station: an ensemble cannot export it")
                 builder.ExportInput(port, name)
@@ -277,19 +407,30 @@ DETECTOR_SIGNALS = {
 }
 
 
-def _add_arms(builder, scenarios):
+def _add_arms(builder, scenarios, shared):
     """The plant with one arm per environment (:func:`AddArmPlant`); returns
     (plant, scene_graph, each environment's plant state port [q; v] (6),
-    its actuation port (3), its joints' inertias (M's diagonal at q0))."""
-    plant, scene_graph = AddArmPlant(builder, [s.arm for s in scenarios])
+    its actuation port (3), its joints' inertias (M's diagonal at q0)).
+    With ``shared`` (an ensemble whose roles serve all environments), the
+    state ports are views of one port of every arm's [q; v] in turn, and
+    the actuation ports are parts of the plant's whole actuation input."""
+    plant, scene_graph = AddArmPlant(builder.builder, [s.arm for s in scenarios])
     inertias = np.diag(plant.CalcMassMatrix(plant.CreateDefaultContext()))
     if len(scenarios) == 1:
         return (plant, scene_graph, [plant.get_state_output_port()],
                 [plant.get_actuation_input_port()], [inertias])
     arms = arm_instances(plant)
-    return (plant, scene_graph, [plant.get_state_output_port(arm) for arm in arms],
-            [plant.get_actuation_input_port(arm) for arm in arms],
-            [inertias[3 * i:3 * i + 3] for i in range(len(arms))])
+    states = [plant.get_state_output_port(arm) for arm in arms]
+    inertias = [inertias[3 * i:3 * i + 3] for i in range(len(arms))]
+    if not shared:
+        return (plant, scene_graph, states,
+                [plant.get_actuation_input_port(arm) for arm in arms], inertias)
+    # Each arm's actuators follow the previous arm's (AddArmPlant adds them
+    # in turn): the whole input is environment-major.
+    axis = builder.axis(builder.combined(states, "plant_state_envs"))
+    actuation = builder.gather(plant.get_actuation_input_port())
+    return (plant, scene_graph, [_View(axis, i) for i in range(len(arms))],
+            [_Slot(actuation, i) for i in range(len(arms))], inertias)
 
 
 @dc.dataclass
@@ -305,43 +446,70 @@ class _Physics:
     external: object
 
 
-def _add_physics(builder, scenario, state_port, joint_inertias) -> _Physics:
-    """The tip kinematics, the wall (behind the scenario's environment
-    faults) and the joint friction of one arm, wired to its ``state_port``."""
-    check_friction_stability(scenario.joint_friction, joint_inertias, scenario.arm.time_step)
-    tip = builder.AddNamedSystem("tip_kinematics", TipKinematics(_kinematics_model()))
-    builder.Connect(state_port, tip.GetInputPort("plant_state"))
-    faults = scenario.faults
-    wall = builder.AddNamedSystem("wall", CompliantWall(
-        scenario.environment, scenario.arm.time_step,
-        stiffness_scale_input=any(f.signal == "stiffness" for f in faults)))
-    builder.Connect(wall.GetOutputPort("force_on_tip"), tip.GetInputPort("force_on_tip"))
-    if faults:
-        # The faults' clock reads the true contact force; the wall's own
-        # inputs may be corrupted (environment faults).
-        clock = builder.AddNamedSystem("fault_clock", FaultClock())
-        builder.Connect(wall.GetOutputPort("contact_force"), clock.get_input_port())
-        clock = clock.get_output_port()
-        surface, active = ChainFaults(builder, faults, "surface",
-                                      tip.GetOutputPort("tip_state"), 6, clock)
-        builder.Connect(surface, wall.GetInputPort("tip_state"))
-        if wall.HasInputPort("stiffness_scale"):
-            one = builder.AddNamedSystem("stiffness_nominal", ConstantVectorSource([1.0]))
-            scale, more = ChainFaults(builder, faults, "stiffness", one.get_output_port(), 1, clock)
-            builder.Connect(scale, wall.GetInputPort("stiffness_scale"))
-            active |= more
-    else:
-        clock, active = None, {}
-        builder.Connect(tip.GetOutputPort("tip_state"), wall.GetInputPort("tip_state"))
+def _one_or_all(items):
+    """The one item of a one-environment station, else the list (the
+    constructors of the systems that serve all environments take both)."""
+    return items[0] if len(items) == 1 else items
 
-    friction = AddJointFriction(
-        builder, scenario.joint_friction, mass_matrix_diagonal=joint_inertias,
-        time_step=scenario.arm.time_step)
-    builder.Connect(state_port, friction.GetInputPort("plant_state"))
-    external = builder.AddNamedSystem("external_torque", Adder(2, 3))
-    builder.Connect(tip.GetOutputPort("generalized_force"), external.get_input_port(0))
-    builder.Connect(friction.GetOutputPort("torque"), external.get_input_port(1))
-    return _Physics(tip, wall, friction, _FaultPorts(clock, active), external.get_output_port())
+
+def _add_physics(builder, envs, scenarios, states, inertias, shared) -> list:
+    """The tip kinematics, the wall (behind the scenario's environment
+    faults) and the joint friction of every arm, wired to its state port:
+    with ``shared``, one system per role for all arms."""
+    count = len(scenarios)
+    for scenario, m in zip(scenarios, inertias):
+        check_friction_stability(scenario.joint_friction, m, scenario.arm.time_step)
+    h = scenarios[0].arm.time_step
+    scale_input = [any(f.signal == "stiffness" for f in s.faults) for s in scenarios]
+    if shared:
+        tips = builder.roles("tip_kinematics", TipKinematics(_kinematics_model(), count))
+        walls = builder.roles("wall", CompliantWall(
+            _one_or_all([s.environment for s in scenarios]), h,
+            stiffness_scale_input=scale_input[0]))
+        frictions = builder.roles(None, AddJointFriction(
+            builder, _one_or_all([s.joint_friction for s in scenarios]),
+            mass_matrix_diagonal=np.concatenate(inertias), time_step=h))
+        externals = builder.roles("external_torque", Adder(2, 3 * count))
+    else:
+        tips = [env.AddNamedSystem("tip_kinematics", TipKinematics(_kinematics_model()))
+                for env in envs]
+        walls = [env.AddNamedSystem("wall", CompliantWall(
+            s.environment, h, stiffness_scale_input=scale))
+            for env, s, scale in zip(envs, scenarios, scale_input)]
+        frictions = [AddJointFriction(env, s.joint_friction, mass_matrix_diagonal=m,
+                                      time_step=h)
+                     for env, s, m in zip(envs, scenarios, inertias)]
+        externals = [env.AddNamedSystem("external_torque", Adder(2, 3)) for env in envs]
+    out = []
+    for env, scenario, state, tip, wall, friction, external in zip(
+            envs, scenarios, states, tips, walls, frictions, externals):
+        env.Connect(state, tip.GetInputPort("plant_state"))
+        env.Connect(wall.GetOutputPort("force_on_tip"), tip.GetInputPort("force_on_tip"))
+        faults = scenario.faults
+        if faults:
+            # The faults' clock reads the true contact force; the wall's own
+            # inputs may be corrupted (environment faults).
+            clock = env.AddNamedSystem("fault_clock", FaultClock())
+            env.Connect(wall.GetOutputPort("contact_force"), clock.get_input_port())
+            clock = clock.get_output_port()
+            surface, active = ChainFaults(env, faults, "surface",
+                                          tip.GetOutputPort("tip_state"), 6, clock)
+            env.Connect(surface, wall.GetInputPort("tip_state"))
+            if wall.HasInputPort("stiffness_scale"):
+                one = env.AddNamedSystem("stiffness_nominal", ConstantVectorSource([1.0]))
+                scale, more = ChainFaults(env, faults, "stiffness", one.get_output_port(), 1,
+                                          clock)
+                env.Connect(scale, wall.GetInputPort("stiffness_scale"))
+                active |= more
+        else:
+            clock, active = None, {}
+            env.Connect(tip.GetOutputPort("tip_state"), wall.GetInputPort("tip_state"))
+        env.Connect(state, friction.GetInputPort("plant_state"))
+        env.Connect(tip.GetOutputPort("generalized_force"), external.GetInputPort("u0"))
+        env.Connect(friction.GetOutputPort("torque"), external.GetInputPort("u1"))
+        out.append(_Physics(tip, wall, friction, _FaultPorts(clock, active),
+                            external.GetOutputPort("sum")))
+    return out
 
 
 @functools.cache
@@ -351,14 +519,21 @@ def _kinematics_model():
     return MakeArmModel()
 
 
-def _apply_to_arms(builder, plant, ports):
+def _apply_to_arms(builder, plant, ports, shared):
     """Feeds each environment's joint torque port (3) into the plant's
-    applied generalized force, in the arms' order (in an ensemble, each
-    through its :func:`FiniteGuard`)."""
-    if len(ports) == 1:
+    applied generalized force, in the arms' order (in an ensemble, through
+    :func:`FiniteGuard`)."""
+    count = len(ports)
+    if count == 1:
         builder.Connect(ports[0], plant.get_applied_generalized_force_input_port())
         return
-    mux = builder.AddNamedSystem("external_torque_arms", Multiplexer([3] * len(ports)))
+    if shared:
+        guard = FiniteGuard(3 * count)
+        for port, role in zip(ports, builder.roles("external_torque_guard", guard)):
+            builder.Connect(port, role.get_input_port())
+        builder.Connect(guard.get_output_port(), plant.get_applied_generalized_force_input_port())
+        return
+    mux = builder.AddNamedSystem("external_torque_arms", Multiplexer([3] * count))
     for i, port in enumerate(ports):
         guard = builder.AddNamedSystem(f"external_torque_guard@{i}", FiniteGuard(3))
         builder.Connect(port, guard.get_input_port())
@@ -390,10 +565,10 @@ def MakeFloorDiagram(scenario: Scenario, joint_torque=(4.0, 0.0, 0.0)):
     constant motor torque (N m) and no sensors or controller. Exports
     ``contact_force_true``."""
     scenario.validate()
-    builder = DiagramBuilder()
-    plant, _, states, _, inertias = _add_arms(builder, [scenario])
-    physics = _add_physics(builder, scenario, states[0], inertias[0])
-    _apply_to_arms(builder, plant, [physics.external])
+    builder = _Wiring(DiagramBuilder(), 1)
+    plant, _, states, _, inertias = _add_arms(builder, [scenario], True)
+    (physics,) = _add_physics(builder, [_Env(builder, 0, 1)], [scenario], states, inertias, True)
+    _apply_to_arms(builder, plant, [physics.external], True)
     torque = builder.AddNamedSystem("joint_torque", ConstantVectorSource(list(joint_torque)))
     builder.Connect(torque.get_output_port(), plant.get_actuation_input_port())
     builder.ExportOutput(physics.wall.GetOutputPort("contact_force"), "contact_force_true")
@@ -437,14 +612,16 @@ def MakeEnsembleDiagram(scenarios) -> ContactStation:
         scenario.validate()
     _check_structure(scenarios)
     count = len(scenarios)
-    builder = DiagramBuilder()
+    # Every role serves all environments at once, except around faults,
+    # which chain per environment between the roles.
+    shared = count == 1 or not any(s.faults for s in scenarios)
+    builder = _Wiring(DiagramBuilder(), count)
     envs = [_Env(builder, i, count) for i in range(count)]
-    plant, scene_graph, states, actuation, inertias = _add_arms(builder, scenarios)
-    physics = [_add_physics(env, s, state, m)
-               for env, s, state, m in zip(envs, scenarios, states, inertias)]
-    _apply_to_arms(builder, plant, [p.external for p in physics])
-    sensing = _add_sensing(builder, envs, scenarios, states, physics)
-    control = _add_control(builder, envs, scenarios, states, sensing, physics, actuation)
+    plant, scene_graph, states, actuation, inertias = _add_arms(builder, scenarios, shared)
+    physics = _add_physics(builder, envs, scenarios, states, inertias, shared)
+    _apply_to_arms(builder, plant, [p.external for p in physics], shared)
+    sensing = _add_sensing(builder, envs, scenarios, states, physics, shared)
+    control = _add_control(builder, envs, scenarios, states, sensing, physics, actuation, shared)
     exports = []
     for env, scenario, state, p, sensed, controlled in zip(
             envs, scenarios, states, physics, sensing, control):
@@ -456,6 +633,7 @@ def MakeEnsembleDiagram(scenarios) -> ContactStation:
     signals = _export_envs(builder, exports)
     builder.ExportOutput(scene_graph.get_query_output_port(), "query_object")
     signals["query_object"] = Signal(0, "the SceneGraph's query object (for visualizers)", {})
+    builder.finish()
     station = ContactStation(scenarios, signals)
     builder.BuildInto(station)
     station.set_name("station")
@@ -488,10 +666,7 @@ def _export_envs(builder, exports):
             raise ScenarioError(f"the ensemble's environments differ in the signal '{name}': "
                                 "they must share a structure")
         if len(ports) > 1:
-            mux = builder.AddNamedSystem(f"{name}_envs", Multiplexer([port.size()] * len(ports)))
-            for i, each in enumerate(ports):
-                builder.Connect(each, mux.get_input_port(i))
-            port = mux.get_output_port()
+            port = builder.combined(ports, f"{name}_envs")
         builder.ExportOutput(port, name)
         signals[name] = Signal(ports[0].size(), meaning, dict(log_as))
     return signals
@@ -507,18 +682,29 @@ class _Sensing:
     measured: MeasuredSignals
 
 
-def _add_sensing(builder, envs, scenarios, states, physics) -> list:
+def _add_sensing(builder, envs, scenarios, states, physics, shared) -> list:
     """The encoders and the kinematic estimator, the force sensor and the
-    DSP of every environment, with the faults on their signals."""
+    DSP of every environment, with the faults on their signals; with
+    ``shared``, one system per role for all environments (the DSP too when
+    no environment's anti-aliasing filter is in)."""
     count = len(scenarios)
-    counted, estimators = [], []
-    for env, scenario, state, p in zip(envs, scenarios, states, physics):
-        encoders = AddEncoders(env, scenario.encoders, scenario.arm.initial_positions)
-        env.Connect(state, encoders.GetInputPort("plant_state"))
-        estimator = AddKinematicEstimator(
-            env, _kinematics_model(), scenario.estimator,
-            encoder_reading(scenario.encoders, scenario.arm.initial_positions))
-        port = encoders.GetOutputPort("joint_positions_measured")
+    zeros = [s.arm.initial_positions for s in scenarios]
+    readings = [encoder_reading(s.encoders, q0) for s, q0 in zip(scenarios, zeros)]
+    if shared:
+        encoders = builder.roles(None, AddEncoders(
+            builder, _one_or_all([s.encoders for s in scenarios]), zeros))
+        estimators = builder.roles(None, AddKinematicEstimator(
+            builder, _kinematics_model(), _one_or_all([s.estimator for s in scenarios]),
+            readings))
+    else:
+        encoders = [AddEncoders(env, s.encoders, q0) for env, s, q0 in zip(envs, scenarios, zeros)]
+        estimators = [AddKinematicEstimator(env, _kinematics_model(), s.estimator, reading)
+                      for env, s, reading in zip(envs, scenarios, readings)]
+    counted = []
+    for env, scenario, state, p, encoder, estimator in zip(
+            envs, scenarios, states, physics, encoders, estimators):
+        env.Connect(state, encoder.GetInputPort("plant_state"))
+        port = encoder.GetOutputPort("joint_positions_measured")
         if p.faults.clock is not None:
             port, active = ChainFaults(
                 env, scenario.faults, "encoders", port, 3, p.faults.clock,
@@ -526,29 +712,31 @@ def _add_sensing(builder, envs, scenarios, states, physics) -> list:
             p.faults.active |= active
         env.Connect(port, estimator.GetInputPort("joint_positions_measured"))
         counted.append(port)
-        estimators.append(estimator)
 
     configs = [s.force_sensor for s in scenarios]
-    if count > 1:
-        views = _role_views(builder, "force_sensor", count, AddForceSensor(builder, configs))
+    sensors = builder.roles(None, AddForceSensor(builder, _one_or_all(configs)))
+    ticks = sensors[0].GetOutputPort("voltage_frame").size()
+    fine_period = scenarios[0].force_sensor.fine_period
+    if shared and (count == 1 or all(s.dsp.anti_aliasing.mode == "off" for s in scenarios)):
+        dsps = builder.roles(None, AddDspForceInput(
+            builder, _one_or_all([s.dsp for s in scenarios]), fine_period, ticks,
+            faults=scenarios[0].faults))
     else:
-        views = [(_input_ports(sensor), _vector_outputs(sensor))
-                 for sensor in (AddForceSensor(env, c) for env, c in zip(envs, configs))]
+        dsps = [AddDspForceInput(env, s.dsp, fine_period, ticks, faults=s.faults)
+                for env, s in zip(envs, scenarios)]
     out = []
-    for env, scenario, p, (sensor_in, sensor_out), port, estimator in zip(
-            envs, scenarios, physics, views, counted, estimators):
-        env.Connect(p.wall.GetOutputPort("force_on_tip"), sensor_in["wrench"])
-        env.Connect(p.tip.GetOutputPort("tip_state"), sensor_in["tip_state"])
+    for env, scenario, p, sensor, dsp, port, estimator in zip(
+            envs, scenarios, physics, sensors, dsps, counted, estimators):
+        env.Connect(p.wall.GetOutputPort("force_on_tip"), sensor.GetInputPort("wrench"))
+        env.Connect(p.tip.GetOutputPort("tip_state"), sensor.GetInputPort("tip_state"))
         faults = p.faults
-        dsp = AddDspForceInput(env, scenario.dsp, scenario.force_sensor.fine_period,
-                               sensor_out["voltage_frame"].size(), faults=scenario.faults)
         if dsp.HasInputPort("contact_time"):
             env.Connect(faults.clock, dsp.GetInputPort("contact_time"))
             faults.active |= {i: dsp.GetOutputPort(f"fault_active_{i}")
                               for i, f in enumerate(scenario.faults) if f.signal == "force"}
-        env.Connect(sensor_out["voltage"], dsp.GetInputPort("voltage"))
+        env.Connect(sensor.GetOutputPort("voltage"), dsp.GetInputPort("voltage"))
         if dsp.HasInputPort("voltage_frame"):
-            env.Connect(sensor_out["voltage_frame"], dsp.GetInputPort("voltage_frame"))
+            env.Connect(sensor.GetOutputPort("voltage_frame"), dsp.GetInputPort("voltage_frame"))
         blocks = {"estimator": estimator, "dsp": dsp}
         measured = MeasuredSignals(**{name: blocks[m.source].GetOutputPort(m.port)
                                       for name, m in MEASUREMENTS.items()})
@@ -571,17 +759,38 @@ class _Control:
     detected: bool
 
 
-def _add_control(builder, envs, scenarios, states, sensing, physics, actuation) -> list:
+def _add_control(builder, envs, scenarios, states, sensing, physics, actuation, shared) -> list:
     """The controller, the identifiers, the safety supervisor, the torque
     limits, any drive faults, the motors and (for a plant step under 1 ms)
     the DAC's hold of every environment, wired from its measured signals to
-    its arm's actuation."""
+    its arm's actuation; with ``shared``, one torque limit, motor, DAC and
+    guard system for all environments."""
+    count = len(scenarios)
     measured = [s.measured for s in sensing]
     systems, inputs, outputs = _add_controller(builder, scenarios, states, measured)
     detected = not systems[0].HasOutputPort("contact_info")
+    h = scenarios[0].arm.time_step
+    if shared:
+        saturations = builder.roles(None, AddTorqueSaturation(
+            builder, np.concatenate([s.torque_limits for s in scenarios])))
+        gains = [MatrixGain(np.diag(s.arm.motor_torque_scale)) for s in scenarios]
+        motors = builder.roles("motors", _one_or_all(gains) if count == 1
+                               else LinearSystemBank(gains))
+        dacs = (builder.roles("dac", SampleHold(CONTROL_PERIOD, 3 * count, h))
+                if h < CONTROL_PERIOD else [None] * count)
+        guards = (builder.roles("actuation_guard", FiniteGuard(3 * count)) if count > 1
+                  else [None])
+    else:
+        saturations = [AddTorqueSaturation(env, s.torque_limits) for env, s in zip(envs, scenarios)]
+        motors = [env.AddNamedSystem("motors", MatrixGain(np.diag(s.arm.motor_torque_scale)))
+                  for env, s in zip(envs, scenarios)]
+        dacs = [env.AddNamedSystem("dac", SampleHold(CONTROL_PERIOD, 3, h))
+                if h < CONTROL_PERIOD else None for env in envs]
+        guards = [env.AddNamedSystem("actuation_guard", FiniteGuard(3)) for env in envs]
     out = []
-    for env, scenario, own, controller, m, p, arm in zip(
-            envs, scenarios, inputs, outputs, measured, physics, actuation):
+    for env, scenario, own, controller, m, p, arm, saturation, motor, dac, guard in zip(
+            envs, scenarios, inputs, outputs, measured, physics, actuation, saturations,
+            motors, dacs, guards):
         torque = controller["joint_torque_commanded"]
         identifiers = None
         if scenario.identifiers:
@@ -599,9 +808,6 @@ def _add_control(builder, envs, scenarios, states, sensing, physics, actuation) 
                     "its identifier in controller.impedance_source")
             env.Connect(identifiers.GetOutputPort(f"impedance_{source}"),
                         own["impedance_estimate"])
-        saturation = AddTorqueSaturation(env, scenario.torque_limits)
-        motors = env.AddNamedSystem(
-            "motors", MatrixGain(np.diag(scenario.arm.motor_torque_scale)))
         supervisor = None
         if scenario.safety.enabled:
             supervisor = env.AddNamedSystem("safety_supervisor",
@@ -617,17 +823,15 @@ def _add_control(builder, envs, scenarios, states, sensing, physics, actuation) 
         if p.faults.clock is not None:
             drive, active = ChainFaults(env, scenario.faults, "drive", drive, 3, p.faults.clock)
             p.faults.active |= active
-        env.Connect(drive, motors.get_input_port())
-        applied = motors.get_output_port()
-        if scenario.arm.time_step < CONTROL_PERIOD:
+        env.Connect(drive, motor.get_input_port())
+        applied = motor.get_output_port()
+        if dac is not None:
             # Between samples the plant steps with the torque of the last sample.
-            dac = env.AddNamedSystem("dac", SampleHold(CONTROL_PERIOD, 3, scenario.arm.time_step))
             env.Connect(applied, dac.get_input_port())
             applied = dac.get_output_port()
-        if len(scenarios) == 1:
+        if guard is None:
             env.Connect(applied, arm)
         else:
-            guard = env.AddNamedSystem("actuation_guard", FiniteGuard(3))
             env.Connect(applied, guard.get_input_port())
             env.Connect(guard.get_output_port(), arm)
         out.append(_Control(controller, identifiers, supervisor, torque, applied, detected))

@@ -32,6 +32,12 @@ FAMILIES = {
         [], ["environment.stiffness=5000"], ["environment.damping=20"]]),
     "sensor": ("sensor_spectrum", 0.6, ["simulation.settle_window=0.5"], [
         [], ["force_sensor.noise_scale=2.0"], ["environment.stiffness=3000"]]),
+    # Faults chain per environment between the roles: the station's other
+    # wiring, one system per role and environment.
+    "faults": ("push_constant", 0.8, ["controller.push.start_time=0"], [
+        ["faults=[{kind: force_bias, start_s: 0.3, magnitude: 2.0}]"],
+        ["faults=[{kind: force_bias, start_s: 0.5, magnitude: -3.0}]",
+         "environment.stiffness=5000"]]),
 }
 
 
@@ -72,6 +78,20 @@ def test_a_diverging_environment_stops_alone():
     assert "exceeds simulation.force_limit" in results[2].message
     for scenario, result in zip(scenarios, results):
         _assert_same_logs(result, dc.simulate_scenario(scenario))
+
+
+def test_every_role_but_the_noise_serves_all_environments_in_one_system():
+    # One system per role: the per-environment ones are the noise sources
+    # (each seeded as alone) and any controller not declared for ensembles.
+    from drake_contact.diagram import leaf_systems
+    station = MakeEnsembleDiagram(_scenarios("identify", count=3))
+    per_env = {s.get_name().split("@")[0] for s in leaf_systems(station)
+               if "@" in s.GetSystemPathname()}
+    assert per_env <= {"force_sensor_gauge_noise", "controller", "law", "outputs",
+                       "stiffness_estimate", "identifiers"} | {
+        s.get_name() for s in leaf_systems(station)
+        if "identifiers@" in s.GetSystemPathname()}, per_env
+    assert "force_sensor_gauge_noise" in per_env
 
 
 def test_an_ensemble_station_carries_an_arm_axis():

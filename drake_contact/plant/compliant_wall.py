@@ -37,8 +37,10 @@ import dataclasses as dc
 import numpy as np
 import pydrake.symbolic as sym
 from pydrake.systems.framework import Diagram, DiagramBuilder
-from pydrake.systems.primitives import Demultiplexer, Multiplexer, SymbolicVectorSystem
+from pydrake.systems.primitives import Demultiplexer, Multiplexer
 
+from drake_contact.arm_axis import StackedSymbolicSystem
+from drake_contact.blocks import environment_configs
 from drake_contact.errors import ScenarioError
 
 CONTACT_LAWS = ("linear", "hunt_crossley")
@@ -134,31 +136,43 @@ class CompliantWall(Diagram):
     No Python runs while it simulates: the law and the state update are
     symbolic expressions that a ``SymbolicVectorSystem`` (``contact_law``,
     holding the state) evaluates in C++, and a ``Demultiplexer``
-    (``outputs``) splits its output vector into the four ports. The
+    (``outputs``) splits its output vector into the four ports. With a
+    list of N configs, the walls of N environments on the arm axis: every
+    port N times its size, environment i's values at ``[k i, k (i + 1))``,
+    each wall's expressions evaluated as alone (``config`` is the first's). The
     expressions perform the floating-point operations of the former Python
     implementation in its order, so results are bit-identical to it (see
     :func:`contact_law_expressions`).
     """
 
-    def __init__(self, config: EnvironmentConfig, time_step: float, *,
-                 stiffness_scale_input=False):
+    def __init__(self, config, time_step: float, *, stiffness_scale_input=False):
         super().__init__()
-        config.validate()
-        self._config = config
+        configs = environment_configs(config, EnvironmentConfig, "environment")
+        for c in configs:
+            c.validate()
+        count = len(configs)
+        self._config = configs[0]
+        self.configs = configs
         self._h = float(time_step)
-        t, state, tip, dynamics, outputs = contact_law_expressions(
-            config, self._h, stiffness_scale_input=stiffness_scale_input)
+        pieces = []
+        for c in configs:
+            t, state, tip, dynamics, outputs = contact_law_expressions(
+                c, self._h, stiffness_scale_input=stiffness_scale_input)
+            pieces.append({"time": t, "state": state, "input": tip, "dynamics": dynamics,
+                           "output": outputs})
+        inputs = [6, 1] if stiffness_scale_input else [6]
         builder = DiagramBuilder()
-        law = builder.AddNamedSystem("contact_law", SymbolicVectorSystem(
-            time=t, state=state, input=tip, dynamics=dynamics, output=outputs,
+        law = builder.AddNamedSystem("contact_law", StackedSymbolicSystem(
+            pieces, input_sizes=inputs, output_sizes=list(OUTPUT_SIZES.values()),
             time_period=self._h))
-        split = builder.AddNamedSystem("outputs", Demultiplexer(list(OUTPUT_SIZES.values())))
+        split = builder.AddNamedSystem("outputs", Demultiplexer(
+            [size * count for size in OUTPUT_SIZES.values()]))
         builder.Connect(law.get_output_port(), split.get_input_port())
         if stiffness_scale_input:
-            inputs = builder.AddNamedSystem("inputs", Multiplexer([6, 1]))
-            builder.Connect(inputs.get_output_port(), law.get_input_port())
-            builder.ExportInput(inputs.get_input_port(0), "tip_state")
-            builder.ExportInput(inputs.get_input_port(1), "stiffness_scale")
+            mux = builder.AddNamedSystem("inputs", Multiplexer([6 * count, count]))
+            builder.Connect(mux.get_output_port(), law.get_input_port())
+            builder.ExportInput(mux.get_input_port(0), "tip_state")
+            builder.ExportInput(mux.get_input_port(1), "stiffness_scale")
         else:
             builder.ExportInput(law.get_input_port(), "tip_state")
         for i, name in enumerate(OUTPUT_SIZES):

@@ -35,11 +35,11 @@ import dataclasses as dc
 import numpy as np
 import pydrake.symbolic as sym
 from pydrake.systems.framework import Diagram, DiagramBuilder
-from pydrake.systems.primitives import (
-    AffineSystem, MatrixGain, Saturation, SymbolicVectorSystem)
+from pydrake.systems.primitives import AffineSystem, MatrixGain, Saturation
 from pydrake.systems.sensors import RotaryEncoders
 
-from drake_contact.blocks import AddSubdiagram
+from drake_contact.arm_axis import LinearSystemBank, StackedSymbolicSystem
+from drake_contact.blocks import AddSubdiagram, environment_configs
 from drake_contact.errors import ScenarioError
 
 #: Controller torque limits (N m) of Appendix E, joints 1-3.
@@ -159,50 +159,57 @@ class LuGreFriction(Diagram):
     holds it to the numpy law within 1e-12).
     """
 
-    def __init__(self, config: JointFrictionConfig, mass_matrix_diagonal, time_step):
+    def __init__(self, config, mass_matrix_diagonal, time_step):
         super().__init__()
+        configs = environment_configs(config, JointFrictionConfig, "joint_friction")
+        inertias = np.reshape(np.asarray(mass_matrix_diagonal, dtype=float), (len(configs), 3))
         h = float(time_step)
-        levels = np.asarray(config.levels if config.enabled else [0.0] * 3, dtype=float)
-        w = 2 * np.pi * config.bristle_frequency_hz
-        inertia = np.asarray(mass_matrix_diagonal, dtype=float)
-        sigma0s = inertia * w**2
-        sigma1s = 2 * config.bristle_damping_ratio * np.sqrt(sigma0s * inertia)
-        state = np.array([sym.Variable(f"{kind}{i + 1}") for kind in ("q", "qdot")
-                          for i in range(3)])
-        z = np.array([sym.Variable(f"z{i + 1}") for i in range(3)])
-        torque, update = [], []
-        for i in range(3):
-            level, sigma0, sigma1 = float(levels[i]), float(sigma0s[i]), float(sigma1s[i])
-            qdot = state[3 + i]
-            if level > 0:
-                # tau = -(sigma0 z + sigma1 dz/dt), dz/dt = qdot - sigma0 |qdot| z / F_c.
-                decay = _held(sigma0 * sym.abs(qdot) / level)
-                rate = _held(qdot - decay * z[i])
-                torque.append(-(sigma0 * z[i] + sigma1 * rate))
-                # Exact for qdot held over the step: z relaxes to its sliding
-                # value F_c sgn(qdot) / sigma0 at the rate sigma0 |qdot| / F_c;
-                # a joint at rest keeps its z.
-                z_slide = sym.if_then_else(qdot > 0, level * 1.0 / sigma0, level * -1.0 / sigma0)
-                relax = sym.exp(_held(-(_held(sigma0 * sym.abs(qdot) / level)) * h))
-                update.append(sym.if_then_else(
-                    qdot == 0.0, z[i], _held(z_slide + _held(_held(z[i] - z_slide) * relax))))
-            else:
-                torque.append(-(sigma0 * z[i] + sigma1 * 0.0))
-                update.append(sym.Expression(0.0))
-        # The state is z one step ago: the update stores z_n = update(z_(n-1),
-        # qdot_n) from the plant's state at t_n, and the torque over the step
-        # from t_n is the law at (z_n, qdot_n), z_n computed there by the same
-        # expressions (the bristles advanced with the velocity they move at).
-        update = [e if isinstance(e, sym.Expression) else sym.Expression(e) for e in update]
-        advanced = dict(zip(z, update))
-        torque = [e.Substitute(advanced) if isinstance(e, sym.Expression) else e
-                  for e in torque]
+        pieces = [_lugre_expressions(c, m, h) for c, m in zip(configs, inertias)]
         builder = DiagramBuilder()
-        law = builder.AddNamedSystem("law", SymbolicVectorSystem(
-            state=z, input=state, dynamics=update, output=torque, time_period=h))
+        law = builder.AddNamedSystem("law", StackedSymbolicSystem(pieces, time_period=h))
         builder.ExportInput(law.get_input_port(), "plant_state")
         builder.ExportOutput(law.get_output_port(), "torque")
         builder.BuildInto(self)
+
+
+def _lugre_expressions(config: JointFrictionConfig, mass_matrix_diagonal, h):
+    """One arm's LuGre law as :func:`StackedSymbolicSystem`'s piece: state
+    z (3), input [q; v] (6), the update and the torque."""
+    levels = np.asarray(config.levels if config.enabled else [0.0] * 3, dtype=float)
+    w = 2 * np.pi * config.bristle_frequency_hz
+    inertia = np.asarray(mass_matrix_diagonal, dtype=float)
+    sigma0s = inertia * w**2
+    sigma1s = 2 * config.bristle_damping_ratio * np.sqrt(sigma0s * inertia)
+    state = np.array([sym.Variable(f"{kind}{i + 1}") for kind in ("q", "qdot")
+                      for i in range(3)])
+    z = np.array([sym.Variable(f"z{i + 1}") for i in range(3)])
+    torque, update = [], []
+    for i in range(3):
+        level, sigma0, sigma1 = float(levels[i]), float(sigma0s[i]), float(sigma1s[i])
+        qdot = state[3 + i]
+        if level > 0:
+            # tau = -(sigma0 z + sigma1 dz/dt), dz/dt = qdot - sigma0 |qdot| z / F_c.
+            decay = _held(sigma0 * sym.abs(qdot) / level)
+            rate = _held(qdot - decay * z[i])
+            torque.append(-(sigma0 * z[i] + sigma1 * rate))
+            # Exact for qdot held over the step: z relaxes to its sliding
+            # value F_c sgn(qdot) / sigma0 at the rate sigma0 |qdot| / F_c;
+            # a joint at rest keeps its z.
+            z_slide = sym.if_then_else(qdot > 0, level * 1.0 / sigma0, level * -1.0 / sigma0)
+            relax = sym.exp(_held(-(_held(sigma0 * sym.abs(qdot) / level)) * h))
+            update.append(sym.if_then_else(
+                qdot == 0.0, z[i], _held(z_slide + _held(_held(z[i] - z_slide) * relax))))
+        else:
+            torque.append(-(sigma0 * z[i] + sigma1 * 0.0))
+            update.append(sym.Expression(0.0))
+    # The state is z one step ago: the update stores z_n = update(z_(n-1),
+    # qdot_n) from the plant's state at t_n, and the torque over the step
+    # from t_n is the law at (z_n, qdot_n), z_n computed there by the same
+    # expressions (the bristles advanced with the velocity they move at).
+    update = [e if isinstance(e, sym.Expression) else sym.Expression(e) for e in update]
+    advanced = dict(zip(z, update))
+    torque = [e.Substitute(advanced) if isinstance(e, sym.Expression) else e for e in torque]
+    return {"state": z, "input": state, "dynamics": update, "output": torque}
 
 
 def _held(e):
@@ -211,8 +218,8 @@ def _held(e):
     return sym.max(e, -np.inf)
 
 
-def AddJointFriction(builder: DiagramBuilder, config: JointFrictionConfig, *,
-                     mass_matrix_diagonal=None, time_step=None, name="joint_friction"):
+def AddJointFriction(builder: DiagramBuilder, config, *, mass_matrix_diagonal=None,
+                     time_step=None, name="joint_friction"):
     """Adds the friction law; returns the added system (the
     :class:`LuGreFriction` or the regularized law's sub-diagram), named
     ``name``.
@@ -220,17 +227,30 @@ def AddJointFriction(builder: DiagramBuilder, config: JointFrictionConfig, *,
     Ports: ``plant_state`` (input, [q; v], 6) and ``torque`` (output, the
     friction torque, 3, N m, to add to the plant's applied generalized
     force). The LuGre model needs the joints' inertias (M's diagonal at q0)
-    and the plant step.
+    and the plant step. With a list of N configs (one model) and N inertia
+    triples, the friction of N arms on the arm axis, each as alone.
     """
-    if config.model == "lugre":
-        return builder.AddNamedSystem(name, LuGreFriction(config, mass_matrix_diagonal, time_step))
-    levels = np.asarray(config.levels if config.enabled else [0.0] * 3, dtype=float)
-    gain = np.zeros((3, 6))
-    gain[:, 3:] = -np.diag(levels / config.regularization_velocity)
+    configs = environment_configs(config, JointFrictionConfig, "joint_friction")
+    models = {c.model for c in configs}
+    if len(models) != 1:
+        raise ScenarioError(f"joint_friction.model = {sorted(models)}: an ensemble's "
+                            "environments share a structure")
+    if configs[0].model == "lugre":
+        return builder.AddNamedSystem(name, LuGreFriction(configs, mass_matrix_diagonal,
+                                                          time_step))
+    gains, limits = [], []
+    for c in configs:
+        levels = np.asarray(c.levels if c.enabled else [0.0] * 3, dtype=float)
+        gain = np.zeros((3, 6))
+        gain[:, 3:] = -np.diag(levels / c.regularization_velocity)
+        gains.append(MatrixGain(gain))
+        limits.append(levels)
+    limits = np.concatenate(limits)
 
     def build(inner):
-        slope = inner.AddNamedSystem(f"{name}_slope", MatrixGain(gain))
-        clamp = inner.AddNamedSystem(f"{name}_clamp", Saturation(-levels, levels))
+        slope = inner.AddNamedSystem(f"{name}_slope",
+                                     gains[0] if len(gains) == 1 else LinearSystemBank(gains))
+        clamp = inner.AddNamedSystem(f"{name}_clamp", Saturation(-limits, limits))
         inner.Connect(slope.get_output_port(), clamp.get_input_port())
         return {"plant_state": slope.get_input_port(), "torque": clamp.get_output_port()}
     return AddSubdiagram(builder, name, build)
@@ -251,25 +271,30 @@ def encoder_reading(config: EncoderConfig, zero_positions):
     return reading
 
 
-def AddEncoders(builder: DiagramBuilder, config: EncoderConfig, zero_positions, *,
-                name="encoders"):
+def AddEncoders(builder: DiagramBuilder, config, zero_positions, *, name="encoders"):
     """Adds incremental encoders zeroed at ``zero_positions`` (q0), reading
     q from the plant state [q; v] (6), as the sub-diagram ``name``; returns
     it. Ports: ``plant_state`` (input, 6) and ``joint_positions_measured``
-    (output, 3, rad).
+    (output, 3, rad). With a list of N configs and N q0s, the encoders of N
+    arms on the arm axis, each as alone.
 
     A joint with 0 counts per revolution is passed through unquantized
     (RotaryEncoders requires a positive count, so we use a huge one); with
     ``config.midpoint`` the others read half a count higher."""
-    counts = [int(c) if c > 0 else 2**30 for c in config.counts_per_revolution]
-    q0 = np.asarray(zero_positions, dtype=float)
-    reading = encoder_reading(config, q0)
+    configs = environment_configs(config, EncoderConfig, "encoders")
+    zeros = np.reshape(np.asarray(zero_positions, dtype=float), (len(configs), 3))
+    counts = [int(c) if c > 0 else 2**30 for config in configs
+              for c in config.counts_per_revolution]
+    shifts = [AffineSystem(D=np.hstack([np.eye(3), np.zeros((3, 3))]), y0=-q0) for q0 in zeros]
+    unshifts = [AffineSystem(D=np.eye(3), y0=encoder_reading(c, q0))
+                for c, q0 in zip(configs, zeros)]
 
     def build(inner):
         shift = inner.AddNamedSystem(
-            f"{name}_zero", AffineSystem(D=np.hstack([np.eye(3), np.zeros((3, 3))]), y0=-q0))
+            f"{name}_zero", shifts[0] if len(shifts) == 1 else LinearSystemBank(shifts))
         encoders = inner.AddNamedSystem(f"{name}_counts", RotaryEncoders(counts))
-        unshift = inner.AddNamedSystem(f"{name}_angle", AffineSystem(D=np.eye(3), y0=reading))
+        unshift = inner.AddNamedSystem(
+            f"{name}_angle", unshifts[0] if len(unshifts) == 1 else LinearSystemBank(unshifts))
         inner.Connect(shift.get_output_port(), encoders.get_input_port())
         inner.Connect(encoders.get_output_port(), unshift.get_input_port())
         return {"plant_state": shift.get_input_port(),

@@ -11,8 +11,9 @@ import numpy as np
 from pydrake import symbolic
 from pydrake.multibody.tree import JacobianWrtVariable
 from pydrake.systems.framework import Diagram, DiagramBuilder
-from pydrake.systems.primitives import Multiplexer, SymbolicVectorSystem
+from pydrake.systems.primitives import Multiplexer
 
+from drake_contact.arm_axis import StackedSymbolicSystem
 from drake_contact.plant.arm import TIP_FRAME
 from drake_contact.plant.planar_arm import ArmParameters, tip_jacobian, tip_pose
 
@@ -76,23 +77,28 @@ class TipKinematics(Diagram):
         applied_generalized_force input.
 
     ``plant``: the arm's plant, against whose kinematics the closed forms
-    are checked once, here.
+    are checked once, here. With ``count`` N, the tip kinematics of N arms
+    on the arm axis: every port N times its size, arm i's values at
+    ``[k i, k (i + 1))``, each evaluated as alone.
     """
 
-    def __init__(self, plant):
+    def __init__(self, plant, count=1):
         super().__init__()
         check_closed_forms(plant)
-        q, v, F = _symbolic("q", 3), _symbolic("v", 3), _symbolic("F", 3)
-        pose = tip_pose(q, **_trig())
-        J = tip_jacobian(q, **_trig())
-        velocity = [J[i][0] * v[0] + J[i][1] * v[1] + J[i][2] * v[2] for i in range(3)]
-        force = [J[0][j] * F[0] + J[1][j] * F[1] + J[2][j] * F[2] for j in range(3)]
+        states, torques = [], []
+        for _ in range(count):
+            q, v, F = _symbolic("q", 3), _symbolic("v", 3), _symbolic("F", 3)
+            pose = tip_pose(q, **_trig())
+            J = tip_jacobian(q, **_trig())
+            velocity = [J[i][0] * v[0] + J[i][1] * v[1] + J[i][2] * v[2] for i in range(3)]
+            force = [J[0][j] * F[0] + J[1][j] * F[1] + J[2][j] * F[2] for j in range(3)]
+            states.append({"input": np.concatenate([q, v]), "output": pose + velocity})
+            torques.append({"input": np.concatenate([q, v, F]), "output": force})
         builder = DiagramBuilder()
-        state = builder.AddNamedSystem("tip_state", SymbolicVectorSystem(
-            state=[], input=np.concatenate([q, v]), output=pose + velocity))
-        mux = builder.AddNamedSystem("state_and_force", Multiplexer([6, 3]))
-        torque = builder.AddNamedSystem("jacobian_transpose", SymbolicVectorSystem(
-            state=[], input=np.concatenate([q, v, F]), output=force))
+        state = builder.AddNamedSystem("tip_state", StackedSymbolicSystem(states))
+        mux = builder.AddNamedSystem("state_and_force", Multiplexer([6 * count, 3 * count]))
+        torque = builder.AddNamedSystem("jacobian_transpose", StackedSymbolicSystem(
+            torques, input_sizes=[6, 3]))
         builder.ExportInput(state.get_input_port(), "plant_state")
         builder.ConnectInput("plant_state", mux.get_input_port(0))
         builder.ExportInput(mux.get_input_port(1), "force_on_tip")

@@ -27,9 +27,10 @@ from pydrake.symbolic import Variable, floor, if_then_else
 from pydrake.symbolic import max as sym_max, min as sym_min
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import (
-    Demultiplexer, Multiplexer, PassThrough, SymbolicVectorSystem)
+    Demultiplexer, Multiplexer, PassThrough)
 
-from drake_contact.blocks import AddSubdiagram
+from drake_contact.arm_axis import LinearSystemBank, StackedSymbolicSystem
+from drake_contact.blocks import AddSubdiagram, environment_configs
 from drake_contact.plant.arm import CONTROL_PERIOD, TIME_TOLERANCE_S
 from drake_contact.errors import ScenarioError
 from drake_contact.faults import ChainFaults
@@ -113,39 +114,46 @@ class DspForceInput(Diagram):
     checks every operation against the same arithmetic in numpy, bit for bit.
     """
 
-    def __init__(self, config: DspConfig, channels=1):
+    def __init__(self, config, channels=1):
         super().__init__()
-        self._config = config
-        self._k = k = channels
-        self._lsb = lsb = 2.0 * config.adc_range_v / 2 ** config.adc_bits
-        t = Variable("t")
-        voltage = [Variable(f"voltage_{i}") for i in range(k)]
-        total = [Variable(f"tare_sum_{i}") for i in range(k)]
-        count = Variable("tare_count")
-        offset = [Variable(f"tare_offset_{i}") for i in range(k)]
-        hi = config.adc_range_v - lsb
-        # The count n = floor(clip(v) / lsb + 0.5), times the force per count.
-        per_count = -config.scale_n_per_v * lsb
-        reading = [per_count * floor(sym_min(sym_max(v, -config.adc_range_v), hi) / lsb + 0.5)
-                   for v in voltage]
-        taring = t < config.tare_window_s - TIME_TOLERANCE_S
-        dynamics = ([if_then_else(taring, s + r, s) for s, r in zip(total, reading)]
-                    + [if_then_else(taring, count + 1, count)]
-                    + [if_then_else(taring, (s + r) / (count + 1), o)
-                       for s, r, o in zip(total, reading, offset)])
-        # Before the first tare sample (count 0) the offset is this very
-        # reading: 0 N.
-        output = [if_then_else(count == 0, 0.0, r - o) for r, o in zip(reading, offset)]
+        configs = environment_configs(config, DspConfig, "dsp")
+        self._config = configs[0]
+        pieces = [_adc_tare_expressions(c, channels) for c in configs]
         builder = DiagramBuilder()
-        adc = builder.AddNamedSystem("adc_tare", SymbolicVectorSystem(
-            time=t, state=total + [count] + offset, input=voltage, dynamics=dynamics,
-            output=output, time_period=CONTROL_PERIOD))
+        adc = builder.AddNamedSystem("adc_tare", StackedSymbolicSystem(
+            pieces, time_period=CONTROL_PERIOD))
         builder.ExportInput(adc.get_input_port(), "voltage")
         builder.ExportOutput(adc.get_output_port(), "force")
         builder.BuildInto(self)
 
 
-def AddDspForceInput(builder: DiagramBuilder, config: DspConfig, fine_period, ticks, *,
+def _adc_tare_expressions(config: DspConfig, k):
+    """One environment's ADC and tare on ``k`` channels as
+    :func:`StackedSymbolicSystem`'s piece."""
+    lsb = 2.0 * config.adc_range_v / 2 ** config.adc_bits
+    t = Variable("t")
+    voltage = [Variable(f"voltage_{i}") for i in range(k)]
+    total = [Variable(f"tare_sum_{i}") for i in range(k)]
+    count = Variable("tare_count")
+    offset = [Variable(f"tare_offset_{i}") for i in range(k)]
+    hi = config.adc_range_v - lsb
+    # The count n = floor(clip(v) / lsb + 0.5), times the force per count.
+    per_count = -config.scale_n_per_v * lsb
+    reading = [per_count * floor(sym_min(sym_max(v, -config.adc_range_v), hi) / lsb + 0.5)
+               for v in voltage]
+    taring = t < config.tare_window_s - TIME_TOLERANCE_S
+    dynamics = ([if_then_else(taring, s + r, s) for s, r in zip(total, reading)]
+                + [if_then_else(taring, count + 1, count)]
+                + [if_then_else(taring, (s + r) / (count + 1), o)
+                   for s, r, o in zip(total, reading, offset)])
+    # Before the first tare sample (count 0) the offset is this very
+    # reading: 0 N.
+    output = [if_then_else(count == 0, 0.0, r - o) for r, o in zip(reading, offset)]
+    return {"time": t, "state": total + [count] + offset, "input": voltage,
+            "dynamics": dynamics, "output": output}
+
+
+def AddDspForceInput(builder: DiagramBuilder, config, fine_period, ticks, *,
                      name="dsp", faults=()):
     """Adds the anti-aliasing option, the ADC/tare and the force filter as
     the sub-diagram ``name``; returns it.
@@ -164,13 +172,25 @@ def AddDspForceInput(builder: DiagramBuilder, config: DspConfig, fine_period, ti
     (:mod:`drake_contact.faults`); then the block also has the input
     ``contact_time`` (1, the FaultClock's) and an output ``fault_active_<i>``
     (1) per force fault i.
+
+    With a list of N configs, the DSPs of N environments on the arm axis
+    (every port N times its size, environment i's at ``[i, i + 1)``), each
+    as alone: the anti-aliasing filter off and no force faults.
     """
-    config.validate()
+    configs = environment_configs(config, DspConfig, "dsp")
+    for c in configs:
+        c.validate()
+    count = len(configs)
+    config = configs[0]
+    if count > 1 and (any(c.anti_aliasing.mode != "off" for c in configs) or any(
+            f.signal == "force" for f in faults)):
+        raise ScenarioError("dsp.anti_aliasing.mode: the DSPs of an ensemble serve its "
+                            "environments together with the filter off and no force faults")
 
     def build(builder):
         mode = config.anti_aliasing.mode
         aa = config.anti_aliasing
-        entry = builder.AddNamedSystem(f"{name}_input", PassThrough(1))
+        entry = builder.AddNamedSystem(f"{name}_input", PassThrough(count))
         ports = {"voltage": entry.get_input_port()}
         if mode != "off":
             rc = builder.AddNamedSystem(
@@ -179,7 +199,7 @@ def AddDspForceInput(builder: DiagramBuilder, config: DspConfig, fine_period, ti
                                             fine_period, ticks))
             ports["voltage_frame"] = rc.get_input_port()
         channels = 2 if mode == "probe" else 1
-        adc = builder.AddNamedSystem(f"{name}_force_input", DspForceInput(config, channels))
+        adc = builder.AddNamedSystem(f"{name}_force_input", DspForceInput(configs, channels))
         if mode == "probe":
             mux = builder.AddNamedSystem(f"{name}_channels", Multiplexer(2))
             builder.Connect(entry.get_output_port(), mux.get_input_port(0))
@@ -188,9 +208,11 @@ def AddDspForceInput(builder: DiagramBuilder, config: DspConfig, fine_period, ti
         else:
             source = rc if mode == "in_loop" else entry
             builder.Connect(source.get_output_port(), adc.GetInputPort("voltage"))
-        b, a = butterworth_digital(config.force_filter_cutoff_hz, 1.0 / CONTROL_PERIOD)
+        filters = [digital_filter_system(
+            *butterworth_digital(c.force_filter_cutoff_hz, 1.0 / CONTROL_PERIOD),
+            CONTROL_PERIOD, channels=channels) for c in configs]
         force_filter = builder.AddNamedSystem(
-            f"{name}_force_filter", digital_filter_system(b, a, CONTROL_PERIOD, channels=channels))
+            f"{name}_force_filter", filters[0] if count == 1 else LinearSystemBank(filters))
         reading = adc.GetOutputPort("force")
         if any(f.signal == "force" for f in faults):
             clock = builder.AddNamedSystem(f"{name}_contact_time", PassThrough(1))

@@ -23,10 +23,11 @@ import dataclasses as dc
 import numpy as np
 from pydrake import symbolic
 from pydrake.systems.framework import Diagram, DiagramBuilder
-from pydrake.systems.primitives import Demultiplexer, LinearSystem, SymbolicVectorSystem
+from pydrake.systems.primitives import Demultiplexer, LinearSystem
 from scipy import signal
 
-from drake_contact.blocks import AddSubdiagram
+from drake_contact.arm_axis import LinearSystemBank, StackedSymbolicSystem
+from drake_contact.blocks import AddSubdiagram, environment_configs
 from drake_contact.plant.arm import CONTROL_PERIOD
 from drake_contact.errors import ScenarioError
 from drake_contact.plant.planar_arm import tip_pose
@@ -64,13 +65,16 @@ class ForwardKinematics(Diagram):
     controller's model of the arm, against whose kinematics the closed forms
     are checked once, here."""
 
-    def __init__(self, plant_model):
+    def __init__(self, plant_model, count=1):
         super().__init__()
         check_closed_forms(plant_model)
-        q = symbolic.MakeVectorVariable(3, "q")
+        pieces = []
+        for _ in range(count):
+            q = symbolic.MakeVectorVariable(3, "q")
+            pieces.append({"input": q, "output": tip_pose(q, sin=symbolic.sin,
+                                                          cos=symbolic.cos)})
         builder = DiagramBuilder()
-        fk = builder.AddNamedSystem("closed_form", SymbolicVectorSystem(
-            state=[], input=q, output=tip_pose(q, sin=symbolic.sin, cos=symbolic.cos)))
+        fk = builder.AddNamedSystem("closed_form", StackedSymbolicSystem(pieces))
         builder.ExportInput(fk.get_input_port(), "joint_positions")
         builder.ExportOutput(fk.get_output_port(), "tip_pose")
         builder.BuildInto(self)
@@ -116,13 +120,17 @@ def _start_at_rest(system: LinearSystem, u0):
     system.configure_default_state(np.linalg.solve(np.eye(A.shape[0]) - A, B @ np.asarray(u0)))
 
 
-def AddKinematicEstimator(builder: DiagramBuilder, plant_model, config: EstimatorConfig,
-                          rest_reading, *, name="estimator"):
+def AddKinematicEstimator(builder: DiagramBuilder, plant_model, config, rest_reading, *,
+                          name="estimator"):
     """Adds the estimator as the sub-diagram ``name``; returns it. Ports:
     ``joint_positions_measured`` (input, 3, rad) and outputs ``tip_pose``
     (3), ``tip_velocity`` (3), ``tip_acceleration`` (3), ``joint_positions``
     (3: q_hat), ``joint_velocities`` (3), and the unfiltered differences
-    ``tip_velocity_raw``, ``tip_acceleration_raw`` (3).
+    ``tip_velocity_raw``, ``tip_acceleration_raw`` (3). With a list of N
+    configs and N rest readings, the estimators of N arms on the arm axis
+    (every port N times its size, arm i's values at ``[k i, k (i + 1))``),
+    each filter a :class:`~drake_contact.arm_axis.LinearSystemBank` that
+    gives each arm its own filter's values bit for bit.
 
     Start-up: every filter and difference starts at rest at the encoders'
     reading ``rest_reading`` (3, rad: q0 as the encoders read it): the
@@ -131,26 +139,40 @@ def AddKinematicEstimator(builder: DiagramBuilder, plant_model, config: Estimato
     histories at 0, which reads the orientation 0.78 rad off at the first
     samples, an artefact of the program's start the thesis's runs begin
     long after.)"""
-    config.validate()
-    b, a = butterworth_digital(config.cutoff_hz, 1.0 / CONTROL_PERIOD)
-    rest_pose = tip_pose(np.asarray(rest_reading, dtype=float))
-
-    def build(builder):
-        joints = builder.AddNamedSystem(f"{name}_joint_filters",
-                                        _joint_filters(b, a, CONTROL_PERIOD))
-        _start_at_rest(joints, rest_reading)
-        split = builder.AddNamedSystem(f"{name}_joint_split", Demultiplexer([3, 3]))
-        fk = builder.AddNamedSystem(f"{name}_forward_kinematics", ForwardKinematics(plant_model))
-        rates = builder.AddNamedSystem(
-            f"{name}_tip_rates", differencing_filter_system(b, a, CONTROL_PERIOD, channels=3))
-        rates_split = builder.AddNamedSystem(f"{name}_tip_rates_split", Demultiplexer([3, 3]))
+    configs = environment_configs(config, EstimatorConfig, "estimator")
+    readings = np.reshape(np.asarray(rest_reading, dtype=float), (len(configs), 3))
+    count = len(configs)
+    filters = {"joint_filters": [], "tip_rates": [], "tip_rates_raw": []}
+    for c, reading in zip(configs, readings):
+        c.validate()
+        b, a = butterworth_digital(c.cutoff_hz, 1.0 / CONTROL_PERIOD)
+        rest_pose = tip_pose(reading)
+        joints = _joint_filters(b, a, CONTROL_PERIOD)
+        _start_at_rest(joints, reading)
+        rates = differencing_filter_system(b, a, CONTROL_PERIOD, channels=3)
         # Unfiltered differences too (the thesis's Fig 6.3 identifies on these).
-        raw = builder.AddNamedSystem(
-            f"{name}_tip_rates_raw",
-            differencing_filter_system([1.0], [1.0], CONTROL_PERIOD, channels=3))
-        raw_split = builder.AddNamedSystem(f"{name}_tip_rates_raw_split", Demultiplexer([3, 3]))
+        raw = differencing_filter_system([1.0], [1.0], CONTROL_PERIOD, channels=3)
         _start_at_rest(rates, rest_pose)
         _start_at_rest(raw, rest_pose)
+        for key, system in zip(filters, (joints, rates, raw)):
+            filters[key].append(system)
+
+    def role(key):
+        # Outputs [first 3, last 3] per arm; a bank gives them field-major.
+        return filters[key][0] if count == 1 else LinearSystemBank(filters[key],
+                                                                    output_sizes=[3, 3])
+
+    def build(builder):
+        joints = builder.AddNamedSystem(f"{name}_joint_filters", role("joint_filters"))
+        split = builder.AddNamedSystem(f"{name}_joint_split", Demultiplexer([3 * count] * 2))
+        fk = builder.AddNamedSystem(f"{name}_forward_kinematics",
+                                    ForwardKinematics(plant_model, count))
+        rates = builder.AddNamedSystem(f"{name}_tip_rates", role("tip_rates"))
+        rates_split = builder.AddNamedSystem(f"{name}_tip_rates_split",
+                                             Demultiplexer([3 * count] * 2))
+        raw = builder.AddNamedSystem(f"{name}_tip_rates_raw", role("tip_rates_raw"))
+        raw_split = builder.AddNamedSystem(f"{name}_tip_rates_raw_split",
+                                           Demultiplexer([3 * count] * 2))
         builder.Connect(fk.GetOutputPort("tip_pose"), raw.get_input_port())
         builder.Connect(raw.get_output_port(), raw_split.get_input_port())
         builder.Connect(joints.get_output_port(), split.get_input_port())
