@@ -38,7 +38,7 @@ from pydrake.systems.primitives import (
     SymbolicVectorSystem)
 from pydrake.symbolic import Variable, floor, if_then_else
 
-from drake_contact.arm_axis import LinearSystemBank
+from drake_contact.arm_axis import LinearSystemBank, StackedSymbolicSystem
 from drake_contact.control.force_reference import ForceReference
 from drake_contact.control.safety_supervisor import (
     SAFETY_STATES, STOP_REASONS, SafetySupervisor)
@@ -311,18 +311,22 @@ def _vector_outputs(system):
             if system.get_output_port(i).get_data_type() == PortDataType.kVectorValued}
 
 
-def SampleHold(period_s, size, time_step):
-    """The DAC: a vector input passed through at each 1 kHz sample instant
-    and held from there until the next, for a plant that steps ``time_step``
-    < ``period_s``. A ``SymbolicVectorSystem`` updated at the plant's step
-    (so its events fall with the plant's), in C++."""
-    t = Variable("t")
-    u = [Variable(f"u{i}") for i in range(size)]
-    held = [Variable(f"held{i}") for i in range(size)]
-    at_sample = abs(t - floor(t / period_s + 0.5) * period_s) <= TIME_TOLERANCE_S
-    passed = [if_then_else(at_sample, a, b) for a, b in zip(u, held)]
-    return SymbolicVectorSystem(time=t, state=held, input=u, dynamics=passed, output=passed,
-                                time_period=time_step)
+def SampleHold(period_s, size, time_step, count=1):
+    """The DAC: a vector input (``size`` elements for each of ``count``
+    environments) passed through at each 1 kHz sample instant and held from
+    there until the next, for a plant that steps ``time_step`` <
+    ``period_s``. Updated at the plant's step (so its events fall with the
+    plant's); a ``SymbolicVectorSystem`` for one environment."""
+    pieces = []
+    for _ in range(count):
+        t = Variable("t")
+        u = [Variable(f"u{i}") for i in range(size)]
+        held = [Variable(f"held{i}") for i in range(size)]
+        at_sample = abs(t - floor(t / period_s + 0.5) * period_s) <= TIME_TOLERANCE_S
+        passed = [if_then_else(at_sample, a, b) for a, b in zip(u, held)]
+        pieces.append({"time": t, "state": held, "input": u, "dynamics": passed,
+                       "output": passed})
+    return StackedSymbolicSystem(pieces, time_period=time_step)
 
 
 def _add_controller(builder, scenarios, states, measured):
@@ -528,7 +532,7 @@ def _apply_to_arms(builder, plant, ports, shared):
         builder.Connect(ports[0], plant.get_applied_generalized_force_input_port())
         return
     if shared:
-        guard = FiniteGuard(3 * count)
+        guard = FiniteGuard(3, count)
         for port, role in zip(ports, builder.roles("external_torque_guard", guard)):
             builder.Connect(port, role.get_input_port())
         builder.Connect(guard.get_output_port(), plant.get_applied_generalized_force_input_port())
@@ -541,14 +545,19 @@ def _apply_to_arms(builder, plant, ports, shared):
     builder.Connect(mux.get_output_port(), plant.get_applied_generalized_force_input_port())
 
 
-def FiniteGuard(size):
-    """u where it is finite, else 0, element by element: in an ensemble,
-    between each environment and the plant, whose every input must be
-    finite (the plant stops the whole simulation on a NaN), so that one
-    diverging environment does not stop the others. The runner reports that
-    environment as diverged from its logs. Stateless, in C++."""
-    u = [Variable(f"u{i}") for i in range(size)]
-    return SymbolicVectorSystem(input=u, output=[if_then_else(abs(x) < np.inf, x, 0.0) for x in u])
+def FiniteGuard(size, count=1):
+    """u where it is finite, else 0, element by element (``size`` elements
+    for each of ``count`` environments): in an ensemble, between each
+    environment and the plant, whose every input must be finite (the plant
+    stops the whole simulation on a NaN), so that one diverging environment
+    does not stop the others. The runner reports that environment as
+    diverged from its logs. Stateless."""
+    pieces = []
+    for _ in range(count):
+        u = [Variable(f"u{i}") for i in range(size)]
+        pieces.append({"input": u,
+                       "output": [if_then_else(abs(x) < np.inf, x, 0.0) for x in u]})
+    return StackedSymbolicSystem(pieces)
 
 
 @dc.dataclass
@@ -776,9 +785,9 @@ def _add_control(builder, envs, scenarios, states, sensing, physics, actuation, 
         gains = [MatrixGain(np.diag(s.arm.motor_torque_scale)) for s in scenarios]
         motors = builder.roles("motors", _one_or_all(gains) if count == 1
                                else LinearSystemBank(gains))
-        dacs = (builder.roles("dac", SampleHold(CONTROL_PERIOD, 3 * count, h))
+        dacs = (builder.roles("dac", SampleHold(CONTROL_PERIOD, 3, h, count))
                 if h < CONTROL_PERIOD else [None] * count)
-        guards = (builder.roles("actuation_guard", FiniteGuard(3 * count)) if count > 1
+        guards = (builder.roles("actuation_guard", FiniteGuard(3, count)) if count > 1
                   else [None])
     else:
         saturations = [AddTorqueSaturation(env, s.torque_limits) for env, s in zip(envs, scenarios)]

@@ -148,3 +148,101 @@ def test_a_bank_splits_its_output_field_major():
     assert np.array_equal(y[1], np.concatenate([env_major[:, :3].ravel(), env_major[:, 3:].ravel()]))
     with pytest.raises(ScenarioError, match="do not sum"):
         LinearSystemBank(systems, output_sizes=[3, 2])
+
+
+def _compare_pieces(pieces, sample, steps=200, seed=5, period=1e-3, input_sizes=None,
+                    output_sizes=None):
+    """Steps the compiled system of ``pieces`` and each piece's own
+    SymbolicVectorSystem from the same states, inputs (``sample(rng, env)``
+    gives one environment's input) and times; returns how many values
+    differ."""
+    from pydrake.systems.primitives import SymbolicVectorSystem
+    rng = np.random.default_rng(seed)
+    count = len(pieces)
+    compiled = StackedSymbolicSystem(pieces, input_sizes=input_sizes,
+                                     output_sizes=output_sizes, time_period=period)
+    alone = [SymbolicVectorSystem(time=p.get("time"), state=list(p.get("state", [])),
+                                  input=list(p["input"]), dynamics=list(p.get("dynamics", [])),
+                                  output=list(p["output"]), time_period=period)
+             for p in pieces]
+    contexts = [s.CreateDefaultContext() for s in alone]
+    context = compiled.CreateDefaultContext()
+    k = len(pieces[0].get("state", []))
+    m_fields = input_sizes or [len(pieces[0]["input"])]
+    p_fields = output_sizes or [len(pieces[0]["output"])]
+
+    def field_major(per_env, fields):
+        out, start = [], 0
+        for size in fields:
+            out.extend(np.concatenate([v[start:start + size] for v in per_env]))
+            start += size
+        return np.array(out)
+
+    state = rng.normal(size=(count, k)) * 1e-3
+    differ = 0
+    for _ in range(steps):
+        t = float(rng.choice([0.0, 0.5, 1.0, 2.0, 3.7])) + float(rng.integers(0, 3)) * period
+        u = [sample(rng, env) for env in range(count)]
+        context.SetTime(t)
+        compiled.get_input_port().FixValue(context, field_major(u, m_fields))
+        if k:
+            context.SetDiscreteState(state.ravel())
+        y = np.array(compiled.get_output_port().Eval(context))
+        xn = (np.array(compiled.EvalUniquePeriodicDiscreteUpdate(context).get_vector().value())
+              if k else None)
+        ys, xs = [], []
+        for env, (system, c) in enumerate(zip(alone, contexts)):
+            c.SetTime(t)
+            system.get_input_port().FixValue(c, u[env])
+            if k:
+                c.SetDiscreteState(state[env])
+                xs.append(np.array(system.EvalUniquePeriodicDiscreteUpdate(c).get_vector()
+                                   .value()).ravel())
+            ys.append(np.array(system.get_output_port().Eval(c)))
+        differ += np.sum(field_major(ys, p_fields) != y)
+        if k:
+            differ += np.sum(np.concatenate(xs) != xn.ravel())
+            state = xn.reshape(count, k)
+    return differ
+
+
+def test_the_compiled_wall_is_each_wall_alone():
+    from drake_contact.plant.compliant_wall import (
+        OUTPUT_SIZES, EnvironmentConfig, contact_law_expressions)
+    configs = [EnvironmentConfig(), EnvironmentConfig(stiffness=30000.0, damping=300.0,
+                                                      stiffness_drift_per_s=0.05),
+               EnvironmentConfig(law="hunt_crossley", friction_coefficient=0.3)]
+    pieces = []
+    for c in configs:
+        t, state, tip, dynamics, outputs = contact_law_expressions(c, 1e-3)
+        pieces.append({"time": t, "state": state, "input": tip, "dynamics": dynamics,
+                       "output": outputs})
+
+    def tip_state(rng, env):
+        # About the surface (0.456 m), in and out of contact, moving or not.
+        x = 0.456 + rng.normal(scale=2e-3)
+        return np.array([x, rng.normal(scale=1e-2), 0.1, rng.choice([0.0, 1.0]) *
+                         rng.normal(scale=0.05), rng.normal(scale=0.05), 0.0])
+    assert _compare_pieces(pieces, tip_state, output_sizes=list(OUTPUT_SIZES.values())) == 0
+
+
+def test_the_compiled_friction_is_each_arms_friction_alone():
+    from drake_contact.plant.joint_physics import JointFrictionConfig, _lugre_expressions
+    configs = [JointFrictionConfig(), JointFrictionConfig(levels=[0.5, 0.0, 0.01]),
+               JointFrictionConfig(bristle_frequency_hz=80.0)]
+    pieces = [_lugre_expressions(c, [0.3, 0.05, 0.003], 1e-3) for c in configs]
+
+    def plant_state(rng, env):
+        v = rng.normal(scale=0.01, size=3) * rng.integers(0, 2, size=3)  # some at rest
+        return np.concatenate([rng.normal(size=3), v])
+    assert _compare_pieces(pieces, plant_state) == 0
+
+
+def test_the_compiled_adc_and_tare_is_each_dsps_alone():
+    from drake_contact.sensing.dsp import DspConfig, _adc_tare_expressions
+    pieces = [_adc_tare_expressions(DspConfig(), 1),
+              _adc_tare_expressions(DspConfig(adc_bits=12, tare_window_s=1.0), 1)]
+
+    def voltage(rng, env):
+        return np.array([rng.choice([rng.normal(scale=0.05), 12.0, -12.0])])
+    assert _compare_pieces(pieces, voltage) == 0
