@@ -299,21 +299,35 @@ _RELATIONS = {symbolic.FormulaKind.Lt: "<", symbolic.FormulaKind.Leq: "<=",
               symbolic.FormulaKind.Eq: "==", symbolic.FormulaKind.Neq: "!="}
 
 
-def _libm(function, *args):
-    """``function`` (math's: the C library's, which Drake's evaluation
-    calls; numpy's exp and pow differ from it in the last bit for some
-    arguments) element by element, with C's results where Python raises:
-    inf on overflow, NaN off the domain."""
-    def each(*values):
-        try:
-            return function(*values)
-        except OverflowError:
-            return math.inf
-        except ValueError:
-            return math.nan
-    args = np.broadcast_arrays(*[np.asarray(a, dtype=float) for a in args])
-    return np.fromiter((each(*v) for v in zip(*(a.ravel() for a in args))), float,
-                       args[0].size).reshape(args[0].shape)
+# The C library's exp and pow, which Drake's evaluation calls (numpy's
+# differ from them in the last bit for some arguments on AVX-512 machines),
+# element by element.
+_EXP = np.frompyfunc(math.exp, 1, 1)
+_POW = np.frompyfunc(math.pow, 2, 1)
+#: exp overflows above this; C's exp gives inf there, Python's raises.
+_EXP_LIMIT = 709.0
+
+
+def _libm_exp(x):
+    x = np.asarray(x, dtype=float)
+    inside = np.minimum(x, _EXP_LIMIT)  # NaN stays NaN
+    return np.where(x > _EXP_LIMIT, np.exp(x), _EXP(inside).astype(float))
+
+
+def _libm_pow(base, exponent):
+    base, exponent = np.broadcast_arrays(np.asarray(base, dtype=float),
+                                         np.asarray(exponent, dtype=float))
+    # Where Python raises (a negative base to a fraction, 0 to a negative
+    # power, overflow) C gives NaN or inf: numpy's power gives those too.
+    with np.errstate(all="ignore"):
+        special = (((base < 0) & (exponent != np.floor(exponent)))
+                   | ((base == 0) & (exponent < 0)) | ~np.isfinite(base)
+                   | ~np.isfinite(exponent) | (np.abs(exponent) * np.log2(np.abs(base) + 1.0)
+                                                > 1000.0))
+        safe_base = np.where(special, 1.0, base)
+        safe_exponent = np.where(special, 1.0, exponent)
+        return np.where(special, np.power(base, exponent),
+                        _POW(safe_base, safe_exponent).astype(float))
 
 
 def _line(register, op):
@@ -348,8 +362,7 @@ def _compile(code, outputs):
     code (see :class:`_Program`)."""
     lines = ["def run(V, C):"] + [f"    {_line(i, op)}" for i, op in enumerate(code)]
     lines.append(f"    return ({''.join(f'r{o}, ' for o in outputs)})")
-    namespace = {"np": np, "_libm_exp": lambda x: _libm(math.exp, x),
-                 "_libm_pow": lambda x, y: _libm(math.pow, x, y)}
+    namespace = {"np": np, "_libm_exp": _libm_exp, "_libm_pow": _libm_pow}
     exec("\n".join(lines), namespace)
     return namespace["run"]
 
@@ -360,6 +373,7 @@ class _Group:
 
     def __init__(self, envs, code, outputs, constants):
         self.envs = np.asarray(envs)
+        self.where = None  # each variable's index in the values vector, per environment
         self.run = _compile(code, outputs)
         self.constants = [np.asarray(c) for c in np.array(constants, dtype=float).T]
 
@@ -450,11 +464,11 @@ class CompiledExpressions(LeafSystem):
         out = np.empty((self._count, size))
         with np.errstate(all="ignore"):
             for group in groups:
-                where = self._where[group.envs]
-                results = group.run([values[where[:, i]] for i in range(where.shape[1])],
-                                    group.constants)
-                for j, r in enumerate(results):
-                    out[group.envs, j] = r
+                if group.where is None:
+                    group.where = self._where[group.envs].T.copy()  # (variables, Ng)
+                results = group.run(values[group.where], group.constants)
+                if results:
+                    out[group.envs] = np.stack(results, axis=1)
         return out
 
     def _output(self, context, output):
