@@ -215,6 +215,10 @@ class _Program:
             self.code.append(key)
         return self._memo[key]
 
+    def _constant_value(self, register):
+        op = self.code[register]
+        return self.constants[op[1]] if op[0] == "const" else None
+
     def constant(self, value):
         value = float(value)
         key = ("const", value)
@@ -247,18 +251,30 @@ class _Program:
                 term = self.expression(factors[0])
                 for factor in factors[1:]:
                     term = self._reg(("mul", term, self.expression(factor)))
-                total = self._reg(("add", total, self._reg(("mul", term,
-                                                              self.constant(coeff)))))
+                if coeff != 1.0:  # x * 1 is x, bit for bit
+                    term = self._reg(("mul", term, self.constant(coeff)))
+                total = self._reg(("add", total, term))
             return total
         if kind == K.Mul:
-            product = self.constant(args[0])
-            for factor in args[1:]:
+            # 1 * x is x and -1 * x is -x, bit for bit.
+            constant, first = args[0], self.expression(args[1])
+            product = (first if constant == 1.0 else self._reg(("neg", first))
+                       if constant == -1.0 else
+                       self._reg(("mul", self.constant(constant), first)))
+            for factor in args[2:]:
                 product = self._reg(("mul", product, self.expression(factor)))
             return product
         if kind == K.IfThenElse:
             return self._reg(("where", self.formula(args[0]), self.expression(args[1]),
                               self.expression(args[2])))
         name = _UNARY.get(kind) or _BINARY.get(kind)
+        if name in ("max", "min"):
+            # max(a, -inf) and min(a, inf) are a, NaN included (std::max(a, b)
+            # is a < b ? b : a).
+            a, b = self.expression(args[0]), self.expression(args[1])
+            if self._constant_value(b) == (-math.inf if name == "max" else math.inf):
+                return a
+            return self._reg((name, a, b))
         if name is None:
             raise NotImplementedError(f"CompiledExpressions: expression kind {kind}")
         return self._reg((name, *(self.expression(a) for a in args)))
@@ -345,6 +361,7 @@ def _line(register, op):
         return f"r{register} = {r[0]} {binary[name]} {r[1]}"
     calls = {"abs": "np.abs", "floor": "np.floor", "ceil": "np.ceil", "sqrt": "np.sqrt",
              "sin": "np.sin", "cos": "np.cos", "exp": "_libm_exp", "not": "np.logical_not",
+             "neg": "np.negative",
              "pow": "_libm_pow"}
     if name in calls:
         return f"r{register} = {calls[name]}({', '.join(r)})"
