@@ -570,9 +570,10 @@ class HybridControlLaw(LeafSystem):
         output.get_mutable_value()[self._index] = rows
 
     def _value(self, port, context):
-        """An input of one value per environment: a float for one, else (N,)."""
+        """An input of one value per environment: a Python float for one
+        (numpy's scalars cost more per operation), else an array (N,)."""
         value = port.Eval(context)
-        return value[0] if self._count == 1 else value
+        return float(value[0]) if self._count == 1 else value
 
     def _law(self, context, t, held, x, xd, q, qdot):
         """The law at the sample at ``t``: the output (a list of
