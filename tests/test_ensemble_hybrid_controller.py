@@ -9,6 +9,7 @@ import dataclasses as dc
 import numpy as np
 import pytest
 
+from drake_contact.control.builtin import hybrid, nn
 from drake_contact.control.controller_model import ControllerModelConfig
 from drake_contact.control.hybrid_controller import (
     _LAW, APPROACH, CONTACT, ApproachConfig, HybridControlLaw, HybridController,
@@ -260,3 +261,28 @@ def test_each_config_is_validated_with_its_environment_named():
     bad = HybridControllerConfig(position_gain=-1.0)
     with pytest.raises(ScenarioError, match=r"controller\.hybrid\[1\]\.position_gain"):
         HybridControlLaw([HybridControllerConfig(), bad])
+
+
+def test_the_factories_serve_a_list_and_pick_each_k_e_alone():
+    decoupled = {"law": "decoupled", "stiffness_source": "rls",
+                 "stiffness_bounds": [1000.0, 60000.0]}
+    controller = hybrid([decoupled, decoupled | {"decoupled_force_gain": 300.0}])
+    context = controller.CreateDefaultContext()
+    for i in range(controller.num_input_ports()):
+        port = controller.get_input_port(i)
+        port.FixValue(context, np.zeros(port.size()))
+    # Environment 0's identifier gives a non-finite R_e and B_e: its K_e is
+    # still its own, and environment 1's is untouched.
+    controller.GetInputPort("impedance_estimate").FixValue(
+        context, [np.nan, np.inf, 5000.0, 1.0, 2.0, 3.0e4])
+    law = controller.GetSubsystemByName("hybrid").GetSubsystemByName("law")
+    np.testing.assert_array_equal(
+        law.GetInputPort("stiffness_estimate").Eval(law.GetMyContextFromRoot(context)),
+        [5000.0, 3.0e4])
+    with pytest.raises(ScenarioError, match=r"controller\.hybrid\[1\]\.pose_integral_gain"):
+        hybrid([{}, {"pose_integral_gain": 100.0}])
+    both = nn([{"hybrid": {"force_gain": 0.25}, "nn": {}},
+               {"hybrid": {"force_gain": 0.5, "y_desired": 0.001}, "nn": {"learning_rate": 1e-5}}])
+    assert {both.GetOutputPort(name).size() for name in (
+        "joint_torque_commanded", "hybrid_torque", "nn_output")} == {6}
+    assert both.GetInputPort("tip_pose_measured").size() == 6
