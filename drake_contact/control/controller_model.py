@@ -10,9 +10,11 @@ parameters, and against the thesis's own forms (tests/thesis_closed_forms.py).
 """
 
 import dataclasses as dc
+from collections.abc import Sequence
 
 import numpy as np
 
+from drake_contact.blocks import arm_axis_ops, environment_configs, per_environment
 from drake_contact.errors import ScenarioError
 from drake_contact.plant.planar_arm import (
     ArmParameters, jdot_qdot, mass_matrix_and_bias, tip_jacobian, tip_pose)
@@ -61,26 +63,44 @@ class ArmModel:
     by the closed forms of :mod:`drake_contact.plant.planar_arm` with the
     model's scaled masses and inertias (one evaluation: a few dozen scalar
     operations, no Drake call).
+
+    One config: the per-sample methods take and return Python floats. A
+    list of N configs (an ensemble's environments): they take arrays (N,)
+    per joint or coordinate and return lists of arrays (N,) (rows for the
+    matrices), environment i's entries bit for bit its own model's (each
+    link's mass, inertia, friction level and motor scale an array over the
+    environments; the same operations, elementwise).
     """
 
-    def __init__(self, config: ControllerModelConfig):
-        self.config = config
-        self.arm = ArmParameters().scaled(config.mass_scale, config.inertia_scale)
-        self.friction_levels = np.asarray(config.friction_levels, dtype=float)
-        self.motor_torque_scale = np.asarray(config.motor_torque_scale, dtype=float)
-        self._friction = [float(x) for x in config.friction_levels]
-        self._band = float(config.friction_band)
-        self._motor = [float(x) for x in config.motor_torque_scale]
+    def __init__(self, config: ControllerModelConfig | Sequence[ControllerModelConfig]):
+        configs = environment_configs(config, ControllerModelConfig, "controller.hybrid.model")
+        self.config = configs[0]
+        self.count = len(configs)
+        self._ops = arm_axis_ops(self.count)
+        arms = [ArmParameters().scaled(c.mass_scale, c.inertia_scale) for c in configs]
+        self.arm = arms[0] if self.count == 1 else dc.replace(
+            arms[0], masses=tuple(per_environment(m) for m in zip(*(a.masses for a in arms))),
+            izz=tuple(per_environment(i) for i in zip(*(a.izz for a in arms))))
+        self.friction_levels = np.asarray(self.config.friction_levels, dtype=float)
+        self.motor_torque_scale = np.asarray(self.config.motor_torque_scale, dtype=float)
+        # F_c and the motor scales per joint: a float or an array (N,) each.
+        self.coulomb_levels = [per_environment(f)
+                               for f in zip(*(c.friction_levels for c in configs))]
+        self._band = per_environment(c.friction_band for c in configs)
+        self._motor = [per_environment(s) for s in zip(*(c.motor_torque_scale for c in configs))]
 
     def evaluate_rows(self, q, qdot):
-        """(J, Jdot qdot, M, h) as lists of Python floats (rows for the
-        matrices), for the controllers' per-sample arithmetic."""
-        arm = self.arm
-        M, h = mass_matrix_and_bias(q, qdot, arm)
-        return tip_jacobian(q, arm), jdot_qdot(q, qdot, arm), M, h
+        """(J, Jdot qdot, M, h) as lists (rows for the matrices) of Python
+        floats (one config) or arrays (N,), for the controllers' per-sample
+        arithmetic."""
+        arm, ops = self.arm, self._ops
+        M, h = mass_matrix_and_bias(q, qdot, arm, ops.sin, ops.cos)
+        return (tip_jacobian(q, arm, ops.sin, ops.cos), jdot_qdot(q, qdot, arm, ops.sin, ops.cos),
+                M, h)
 
     def evaluate(self, q, qdot):
-        """(pose [x, y, phi], J (3x3), Jdot qdot (3), M (3x3), h (3)) as arrays."""
+        """(pose [x, y, phi], J (3x3), Jdot qdot (3), M (3x3), h (3)) as
+        arrays, for one config."""
         q = [float(x) for x in q]
         qdot = [float(x) for x in qdot]
         J, jd, M, h = self.evaluate_rows(q, qdot)
@@ -93,4 +113,5 @@ class ArmModel:
 
     def friction_compensation(self, qdot):
         """F_c sgn(qdot), linear inside |qdot| < band (the thesis's code)."""
-        return [f * min(max(w / self._band, -1.0), 1.0) for f, w in zip(self._friction, qdot)]
+        clip, band = self._ops.clip, self._band
+        return [f * clip(w / band, -1.0, 1.0) for f, w in zip(self.coulomb_levels, qdot)]

@@ -142,16 +142,25 @@ angles and velocities, and the DSP's filtered force. M, h, J, Jdot qdot and
 F_c come from the controller's own model of the arm (controller_model.py),
 which may be wrong. Jdot qdot is the true one (the thesis's code used a
 product linear in qdot, Appendix E).
+
+One :class:`HybridControlLaw` serves N environments (an ensemble; one config
+each, a single config for one): the same code runs on Python floats for one
+and elementwise on arrays over the arm axis for N, each environment's
+branches (approach or contact, the switch, the holds, the clips) as masks,
+each environment bit for bit what it computes alone. The configs may differ
+in every number, not in the law nor in which options are on.
 """
 
 import dataclasses as dc
 import math
+from collections.abc import Sequence
+from types import SimpleNamespace
 
 import numpy as np
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Demultiplexer
 
-from drake_contact.blocks import Layout
+from drake_contact.blocks import Layout, arm_axis_ops, environment_configs, per_environment
 from drake_contact.constants import CONTACT_THRESHOLD_N, RATIO_TOLERANCE
 from drake_contact.plant.arm import (
     CONTROL_PERIOD, LINK_LENGTHS, TIME_TOLERANCE_S, DeclareSampledUpdate, is_sample_time)
@@ -334,15 +343,109 @@ class HybridControllerConfig:
         self.model.validate(f"{prefix}.model")
 
 
-#: Layout of the law's output vector: the exported signals, then the
-#: internal state [approach timer (s), x_d (m), sum of force errors (N),
-#: sums of the y and phi errors (m, rad), the force at this sample (N), the k_e
-#: the decoupled law used (N/m), f_d at this sample (N), the time until which
-#: the force integral is held (s), the low-passed force error (N)].
+#: Layout of one environment's part of the law's output vector: the
+#: exported signals, then the internal state [approach timer (s), x_d (m),
+#: sum of force errors (N), sums of the y and phi errors (m, rad), the force
+#: at this sample (N), the k_e the decoupled law used (N/m), f_d at this
+#: sample (N), the time until which the force integral is held (s), the
+#: low-passed force error (N)]. N environments' vector is field-major, each
+#: field env-major: field F (k values) at [N o_F + k i, N o_F + k (i + 1))
+#: for environment i, o_F its offset here.
 _LAW = Layout(("tau", 3), ("mode", 1), ("info", 4), ("jacobian", 9), ("internal", 10))
 _TAU, _MODE, _INFO, _JACOBIAN, _INTERNAL = (
     _LAW.tau, _LAW.mode, _LAW.info, _LAW.jacobian, _LAW.internal)
 _LAW_SIZE = _LAW.size
+
+
+def _gather(count):
+    """(_LAW_SIZE, count) indices of the N-environment law vector: row e,
+    column i is environment i's element e of :data:`_LAW`."""
+    index = np.empty((_LAW_SIZE, count), dtype=int)
+    for name, size in zip(_LAW.names(), _LAW.sizes):
+        field = getattr(_LAW, name)
+        start = field.start if isinstance(field, slice) else field
+        for k in range(size):
+            index[start + k] = count * start + size * np.arange(count) + k
+    return index
+
+
+#: The options a config switches on (its structure, which an ensemble's
+#: environments share), by the field that switches each.
+_SWITCHES = {
+    "law": lambda c: c.law,
+    "contact_damping_x": lambda c: c.contact_damping_x != 0,
+    "contact_force_rate_damping": lambda c: c.contact_force_rate_damping != 0,
+    "decoupled_force_integral_gain": lambda c: c.decoupled_force_integral_gain != 0,
+    "stiffness_source": lambda c: c.stiffness_source != "",
+    "stiffness_halving_time_s": lambda c: c.stiffness_halving_time_s != 0,
+    "pose_integral_gain": lambda c: c.pose_integral_gain != 0,
+    "force_coupling_cancellation": lambda c: c.force_coupling_cancellation != 0,
+    "force_integral_hold_s": lambda c: c.force_integral_hold_s != 0,
+    "force_error_friction_compensation": lambda c: c.force_error_friction_compensation != 0,
+    "pose_joint_stiffness": lambda c: any(c.pose_joint_stiffness) or any(c.pose_joint_damping),
+    "friction_compensation": lambda c: bool(c.friction_compensation),
+}
+
+
+def _check_structure(configs, prefix="controller.hybrid"):
+    """Raises ScenarioError naming the field if an environment's config
+    switches an option on that environment 0's leaves off, or the reverse
+    (their numbers may differ)."""
+    first = {field: switch(configs[0]) for field, switch in _SWITCHES.items()}
+    for i, config in enumerate(configs[1:], start=1):
+        for field, switch in _SWITCHES.items():
+            if switch(config) == first[field]:
+                continue
+            if field == "law":
+                raise ScenarioError(
+                    f"{prefix}[{i}].law = '{config.law}' differs from environment 0's "
+                    f"('{configs[0].law}'): an ensemble's environments share a structure")
+            if field == "pose_joint_stiffness" and (
+                    any(config.pose_joint_stiffness) == any(configs[0].pose_joint_stiffness)):
+                field = "pose_joint_damping"  # joint impedance: stiffness or damping on
+            raise ScenarioError(
+                f"{prefix}[{i}].{field} = {getattr(config, field)} differs in whether it is on "
+                f"from environment 0's ({getattr(configs[0], field)}): an ensemble's "
+                "environments share a structure")
+
+
+def _parameters(configs):
+    """Each environment's numbers (Python floats for one, arrays (N,) for
+    more), with the constants the law derives from them computed per
+    environment in Python floats (exp and pow stay out of the per-sample
+    kernel: numpy's differ from math's in the last bit)."""
+    def each(get):
+        return per_environment(get(c) for c in configs)
+
+    names = ("position_gain", "velocity_gain", "force_gain", "force_integral_gain",
+             "contact_damping_x", "contact_force_rate_damping", "decoupled_force_gain",
+             "decoupled_force_damping", "decoupled_force_integral_gain", "force_integral_band_n",
+             "force_coupling_cancellation", "force_integral_hold_s", "force_step_threshold_n",
+             "force_error_friction_compensation", "force_error_friction_band_n",
+             "contact_threshold_n", "contact_loss_threshold_n", "y_desired", "phi_desired")
+    p = SimpleNamespace(**{name: each(lambda c, name=name: getattr(c, name)) for name in names})
+    for name in ("start_x", "hold_time_s", "first_target_x", "step_m", "step_period_s"):
+        setattr(p, name, each(lambda c, name=name: getattr(c.approach, name)))
+    # The approach holds x_d until hold_end; after a loss the timer restarts
+    # one step period before the first target.
+    p.hold_end = each(lambda c: c.approach.hold_time_s - TIME_TOLERANCE_S)
+    p.restart_timer = each(lambda c: c.approach.hold_time_s - c.approach.step_period_s)
+    p.stiffness_low = each(lambda c: c.stiffness_bounds[0])
+    p.stiffness_high = each(lambda c: c.stiffness_bounds[1])
+    p.stiffness_fall = each(lambda c: 0.5 ** (CONTROL_PERIOD / c.stiffness_halving_time_s)
+                            if c.stiffness_halving_time_s else 0.0)
+    p.pose_integral_step = each(lambda c: c.pose_integral_gain * CONTROL_PERIOD)
+    p.pose_integral_bound = each(
+        lambda c: c.pose_integral_limit / (c.pose_integral_gain * CONTROL_PERIOD)
+        if c.pose_integral_gain else 0.0)
+    # First-order low-pass of the force error, exact for a held input.
+    p.error_filter_gain = each(lambda c: 1.0 - math.exp(
+        -2.0 * math.pi * c.force_error_filter_hz * CONTROL_PERIOD))
+    p.pose_joint_stiffness = [per_environment(k) for k in zip(
+        *(c.pose_joint_stiffness for c in configs))]
+    p.pose_joint_damping = [per_environment(d) for d in zip(
+        *(c.pose_joint_damping for c in configs))]
+    return p
 
 
 def read_measured_state(context, pose, velocity, joint_positions, joint_velocities):
@@ -361,35 +464,73 @@ def read_measured_state(context, pose, velocity, joint_positions, joint_velociti
 
 
 class HybridControlLaw(LeafSystem):
-    """The law of :class:`HybridController` as one leaf system: its single
-    output ``control`` (20) is the law evaluated on the inputs at a sample
-    instant (k ms) and held between them; the discrete update at each sample
-    stores it. So the law runs once per sample, in the same event as the
-    plant step it drives."""
+    """The law of :class:`HybridController` for N environments (one config
+    each; a single config: N = 1) as one leaf system: its single output
+    ``control`` (27 N: :data:`_LAW` per environment, field-major, each field
+    env-major) is the law evaluated on the inputs at a sample instant (k ms)
+    and held between them; the discrete update at each sample stores it. So
+    the law runs once per sample, in the same event as the plant step it
+    drives.
 
-    def __init__(self, config: HybridControllerConfig, action_input: bool = False):
+    Inputs are env-major (environment i's k values at [k i, k (i + 1))):
+    tip_pose, tip_velocity, joint_positions, joint_velocities (3 N each),
+    force, force_desired, stiffness_estimate (N each).
+
+    One code runs the law (:meth:`_law`): on Python floats for one
+    environment, elementwise on arrays (N,) for more, its branches per
+    environment (approach or contact, the switch and the loss, the held and
+    the conditional integral, the clips) as masks through the operations of
+    :func:`drake_contact.blocks.arm_axis_ops`; environment i's outputs are
+    bit for bit those of the law with its config alone. The configs may
+    differ in every number, not in the options they switch on (the law, and
+    which optional terms are on: :func:`_check_structure`). A policy's
+    ``action_input`` serves one environment."""
+
+    def __init__(self, config: HybridControllerConfig | Sequence[HybridControllerConfig],
+                 action_input: bool = False):
         super().__init__()
-        config.validate()
-        if action_input and config.law != "hybrid":
-            raise ScenarioError(f"controller.hybrid.law = '{config.law}': a policy's action "
+        configs = environment_configs(config, HybridControllerConfig, "controller.hybrid")
+        self._count = count = len(configs)
+        for i, c in enumerate(configs):
+            c.validate("controller.hybrid" if count == 1 else f"controller.hybrid[{i}]")
+        _check_structure(configs)
+        first = configs[0]
+        if action_input and count > 1:
+            raise ScenarioError(f"controller.hybrid: a policy's action acts on one environment, "
+                                f"not an ensemble's {count}")
+        if action_input and first.law != "hybrid":
+            raise ScenarioError(f"controller.hybrid.law = '{first.law}': a policy's action "
                                 "acts on the hybrid law only: choose law: hybrid")
-        self._config = config
-        self._model = ArmModel(config.model)
-        self._joint_impedance = any(config.pose_joint_stiffness) or any(config.pose_joint_damping)
-        # First-order low-pass of the force error, exact for a held input.
-        self._error_filter_gain = 1.0 - math.exp(-2.0 * math.pi * config.force_error_filter_hz
-                                                 * CONTROL_PERIOD)
-        self._pose = self.DeclareVectorInputPort("tip_pose", 3)
-        self._velocity = self.DeclareVectorInputPort("tip_velocity", 3)
-        self._q = self.DeclareVectorInputPort("joint_positions", 3)
-        self._qdot = self.DeclareVectorInputPort("joint_velocities", 3)
-        self._force = self.DeclareVectorInputPort("force", 1)
-        self._force_desired = self.DeclareVectorInputPort("force_desired", 1)
-        self._stiffness = self.DeclareVectorInputPort("stiffness_estimate", 1)
-        held = np.zeros(_LAW_SIZE)
-        held[_INFO] = [-1.0, 0.0, 0.0, 0.0]
-        held[_INTERNAL] = [0.0, config.approach.start_x, 0.0, 0.0, 0.0, 0.0,
-                           config.stiffness_bounds[1], 0.0, 0.0, 0.0]
+        self._ops = arm_axis_ops(count)
+        self._p = _parameters(configs)
+        self._model = ArmModel(first.model if count == 1 else [c.model for c in configs])
+        # The structure: which optional terms the law computes.
+        self._hybrid = first.law == "hybrid"
+        self._friction_compensation = bool(first.friction_compensation)
+        self._damping_x = first.contact_damping_x != 0
+        self._force_rate_damping = first.contact_force_rate_damping != 0
+        self._decoupled_integral = first.decoupled_force_integral_gain != 0
+        self._stiffness_fall = first.stiffness_halving_time_s != 0
+        self._pose_integral = first.pose_integral_gain != 0
+        self._coupling = first.force_coupling_cancellation != 0
+        self._integral_hold = first.force_integral_hold_s != 0
+        self._friction_from_error = first.force_error_friction_compensation != 0
+        self._joint_impedance = _SWITCHES["pose_joint_stiffness"](first)
+        self._pose = self.DeclareVectorInputPort("tip_pose", 3 * count)
+        self._velocity = self.DeclareVectorInputPort("tip_velocity", 3 * count)
+        self._q = self.DeclareVectorInputPort("joint_positions", 3 * count)
+        self._qdot = self.DeclareVectorInputPort("joint_velocities", 3 * count)
+        self._force = self.DeclareVectorInputPort("force", count)
+        self._force_desired = self.DeclareVectorInputPort("force_desired", count)
+        self._stiffness = self.DeclareVectorInputPort("stiffness_estimate", count)
+        self._index = _gather(count)
+        rows = np.zeros((_LAW_SIZE, count))
+        rows[_INFO] = np.array([[-1.0], [0.0], [0.0], [0.0]])
+        start = _INTERNAL.start
+        rows[start + 1], rows[start + 6] = self._p.start_x, self._p.stiffness_high  # x_d, k_e
+        held = np.empty(_LAW_SIZE * count)
+        held[self._index] = rows
+        self._rows = rows  # the N-environment output's work buffer
         self._held = self.DeclareDiscreteState(held)
         # A policy's action (drake_contact.control.policy), and the law's
         # held output (the previous sample's) for the policy's observation:
@@ -399,7 +540,7 @@ class HybridControlLaw(LeafSystem):
             self._action = self.DeclareVectorInputPort("policy_action", ACTION.size)
             self.DeclareStateOutputPort("held", self._held)
         self._control = self.DeclareVectorOutputPort(
-            "control", _LAW_SIZE, self._calc_control,
+            "control", _LAW_SIZE * count, self._calc_control,
             prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket(),
                                    self.time_ticket()})
         DeclareSampledUpdate(self, self._update)
@@ -408,115 +549,164 @@ class HybridControlLaw(LeafSystem):
         # At t = 0 (before the first sample) the output is the held state.
         state.set_value(self._control.Eval(context))
 
-    def _approach_target(self, timer, x_d):
-        a = self._config.approach
-        if timer < a.hold_time_s - TIME_TOLERANCE_S:
-            return x_d  # start_x at the start; the last target after a loss
-        return a.first_target_x + a.step_m * np.floor((timer - a.hold_time_s) / a.step_period_s
-                                                      + RATIO_TOLERANCE)
-
     def _calc_control(self, context, output):
-        c = self._config
         held = context.get_discrete_state(self._held).value()
         t = context.get_time()
         if not is_sample_time(t):
             output.SetFromVector(held)  # zero-order hold between samples
             return
-        x, xd, q, qdot = read_measured_state(
-            context, self._pose, self._velocity, self._q, self._qdot)
-        f = self._force.Eval(context)[0]
-        mode = held[_MODE]
-        info = held[_INFO].tolist()
-        (timer, x_d, error_sum, y_sum, phi_sum, f_previous, k_used, fd_previous,
-         hold_until, error_lp) = held[_INTERNAL].tolist()
+        if self._count == 1:
+            x, xd, q, qdot = read_measured_state(
+                context, self._pose, self._velocity, self._q, self._qdot)
+            output.SetFromVector(self._law(context, t, held.tolist(), x, xd, q, qdot))
+            return
+        # Rows over the arm axis; a diverging environment's non-finite
+        # values stay its own (the station reports it).
+        x, xd, q, qdot = (list(port.Eval(context).reshape(self._count, 3).T) for port in (
+            self._pose, self._velocity, self._q, self._qdot))
+        rows = self._rows
+        for e, value in enumerate(self._law(context, t, held[self._index], x, xd, q, qdot)):
+            rows[e] = value
+        output.get_mutable_value()[self._index] = rows
 
-        if mode == APPROACH and f > c.contact_threshold_n:
-            mode, error_sum, y_sum, phi_sum, error_lp = CONTACT, 0.0, 0.0, 0.0, 0.0
-            k_used = c.stiffness_bounds[1]
-            if info[0] < 0:
-                info[0] = t
-            info[1:] = x
-        elif mode == CONTACT and f < c.contact_loss_threshold_n:
-            mode = APPROACH
-            timer = c.approach.hold_time_s - c.approach.step_period_s
-        if mode == APPROACH:
-            x_d = self._approach_target(timer, x_d)
-            timer += CONTROL_PERIOD
+    def _value(self, port, context):
+        """An input of one value per environment: a Python float for one
+        (numpy's scalars cost more per operation), else an array (N,)."""
+        value = port.Eval(context)
+        return float(value[0]) if self._count == 1 else value
+
+    def _law(self, context, t, held, x, xd, q, qdot):
+        """The law at the sample at ``t``: the output (a list of
+        :data:`_LAW`'s 27 values, each a float or an array (N,)) from the
+        held one and the measured [x, y, phi], their rates, q and qdot."""
+        p, ops = self._p, self._ops
+        where = ops.where
+        f = self._value(self._force, context)
+        mode = held[_MODE]
+        info = list(held[_INFO])
+        (timer, x_d, error_sum, y_sum, phi_sum, f_previous, k_used, fd_previous,
+         hold_until, error_lp) = held[_INTERNAL]
+
+        enter = (mode == APPROACH) & (f > p.contact_threshold_n)
+        leave = (mode == CONTACT) & (f < p.contact_loss_threshold_n)
+        if ops.any(enter):
+            mode = where(enter, CONTACT, mode)
+            error_sum, y_sum, phi_sum, error_lp = (
+                where(enter, 0.0, v) for v in (error_sum, y_sum, phi_sum, error_lp))
+            k_used = where(enter, p.stiffness_high, k_used)
+            info[0] = where(enter & (info[0] < 0), t, info[0])
+            info[1:] = [where(enter, x[i], info[i + 1]) for i in range(3)]
+        if ops.any(leave):
+            mode = where(leave, APPROACH, mode)
+            timer = where(leave, p.restart_timer, timer)
+        approach = mode == APPROACH
+        if ops.any(approach):
+            x_d = where(approach, self._approach_target(timer, x_d), x_d)
+            timer = where(approach, timer + CONTROL_PERIOD, timer)
 
         J, jdot_qdot, M, h = self._model.evaluate_rows(q, qdot)
-        target = (x_d, c.y_desired, c.phi_desired)
-        u_x = [c.position_gain * (target[i] - x[i]) - c.velocity_gain * xd[i] for i in range(3)]
+        target = (x_d, p.y_desired, p.phi_desired)
+        u_x = [p.position_gain * (target[i] - x[i]) - p.velocity_gain * xd[i] for i in range(3)]
         tau = list(h)
-        if c.friction_compensation:
+        if self._friction_compensation:
             tau = [a + b for a, b in zip(tau, self._model.friction_compensation(qdot))]
         force_x = 0.0
-        if mode == APPROACH:
-            accel = u_x
-        else:
-            f_d = self._force_desired.Eval(context)[0]
+        accel = u_x
+        contact = mode == CONTACT
+        in_contact = ops.any(contact)
+        if in_contact:
+            # Every state this branch changes is masked with `contact`
+            # (arrays are never updated in place: x = x + y, not x += y).
+            f_d = self._value(self._force_desired, context)
             error = f_d - f
-            if c.force_integral_hold_s and abs(f_d - fd_previous) > c.force_step_threshold_n:
-                hold_until = t + c.force_integral_hold_s
-            fd_previous = f_d
-            if t > hold_until - 0.5 * CONTROL_PERIOD and (not c.force_integral_band_n
-                                    or abs(error) <= c.force_integral_band_n):
-                error_sum += error
+            if self._integral_hold:
+                hold_until = where(contact & (abs(f_d - fd_previous) > p.force_step_threshold_n),
+                                   t + p.force_integral_hold_s, hold_until)
+            fd_previous = where(contact, f_d, fd_previous)
+            integrate = contact & (t > hold_until - 0.5 * CONTROL_PERIOD) & (
+                (p.force_integral_band_n == 0.0) | (abs(error) <= p.force_integral_band_n))
+            error_sum = where(integrate, error_sum + error, error_sum)
             accel = [0.0, u_x[1], u_x[2]]  # (I - S) u_x
-            if c.pose_integral_gain:
-                gain = c.pose_integral_gain * CONTROL_PERIOD
-                bound = c.pose_integral_limit / gain
-                y_sum = min(max(y_sum + (target[1] - x[1]), -bound), bound)
-                phi_sum = min(max(phi_sum + (target[2] - x[2]), -bound), bound)
-                accel[1] += gain * y_sum
-                accel[2] += gain * phi_sum
-            if c.law == "hybrid":
-                force_gain, integral_gain, damping_x = (
-                    c.force_gain, c.force_integral_gain, c.contact_damping_x)
-                if self._action is not None:
-                    residual, force_gain, integral_gain, damping_x = apply_action(
-                        self._action.Eval(context), force_gain, integral_gain, damping_x)
-                force_x = f_d + force_gain * error + integral_gain * error_sum
-                if self._action is not None:
-                    force_x += residual
-                if damping_x:
-                    force_x -= damping_x * xd[0]
-                if c.contact_force_rate_damping:
-                    force_x -= c.contact_force_rate_damping * (f - f_previous) / CONTROL_PERIOD
+            if self._pose_integral:
+                gain, bound = p.pose_integral_step, p.pose_integral_bound
+                y_sum = where(contact, ops.clip(y_sum + (target[1] - x[1]), -bound, bound), y_sum)
+                phi_sum = where(contact, ops.clip(phi_sum + (target[2] - x[2]), -bound, bound),
+                                phi_sum)
+                accel[1] = accel[1] + gain * y_sum
+                accel[2] = accel[2] + gain * phi_sum
+            if self._hybrid:
+                force_x = self._hybrid_x(context, f, f_d, error, error_sum, f_previous, xd)
             else:
-                force_x, k_used = self._decoupled_x(
+                force_x, k_e = self._decoupled_x(
                     context, f_d, error, error_sum, k_used, xd, accel, J, M)
+                k_used = where(contact, k_e, k_used)
+            accel = [where(contact, a, u) for a, u in zip(accel, u_x)]
+            force_x = where(contact, force_x, 0.0)
         qddot = solve3(J, [a - b for a, b in zip(accel, jdot_qdot)])
         tau = [tau[i] + M[i][0] * qddot[0] + M[i][1] * qddot[1] + M[i][2] * qddot[2]
                + J[0][i] * force_x for i in range(3)]
-        if mode == CONTACT:
-            tau, error_lp = self._contact_joint_terms(tau, error, error_lp, J, target, x, xd)
+        if in_contact and (self._friction_from_error or self._joint_impedance):
+            terms, error_lp_new = self._contact_joint_terms(
+                tau, error, error_lp, J, target, x, xd)
+            tau = [where(contact, a, b) for a, b in zip(terms, tau)]
+            error_lp = where(contact, error_lp_new, error_lp)
 
-        output.SetFromVector(self._model.command(tau) + [mode] + info + J[0] + J[1] + J[2]
-                             + [timer, x_d, error_sum, y_sum, phi_sum, f, k_used, fd_previous,
-                                hold_until, error_lp])
+        return (self._model.command(tau) + [mode] + info + J[0] + J[1] + J[2]
+                + [timer, x_d, error_sum, y_sum, phi_sum, f, k_used, fd_previous, hold_until,
+                   error_lp])
 
+    def _approach_target(self, timer, x_d):
+        """x_d of the approach schedule at ``timer``: held until the hold
+        ends (start_x at the start, the last target after a loss), then the
+        steps from first_target_x."""
+        p, ops = self._p, self._ops
+        holding = timer < p.hold_end
+        if ops.all(holding):
+            return x_d
+        steps = ops.floor((timer - p.hold_time_s) / p.step_period_s + RATIO_TOLERANCE)
+        return ops.where(holding, x_d, p.first_target_x + p.step_m * steps)
+
+    def _hybrid_x(self, context, f, f_d, error, error_sum, f_previous, xd):
+        """The hybrid law's force along x (4.13-4.15) and its options; with
+        a policy's action (one environment) its residual and gains."""
+        p = self._p
+        force_gain, integral_gain, damping_x = (
+            p.force_gain, p.force_integral_gain, p.contact_damping_x)
+        damping = self._damping_x
+        if self._action is not None:
+            residual, force_gain, integral_gain, damping_x = apply_action(
+                self._action.Eval(context), force_gain, integral_gain, damping_x)
+            damping = bool(damping_x)
+        force_x = f_d + force_gain * error + integral_gain * error_sum
+        if self._action is not None:
+            force_x = force_x + residual
+        if damping:
+            force_x = force_x - damping_x * xd[0]
+        if self._force_rate_damping:
+            force_x = force_x - p.contact_force_rate_damping * (f - f_previous) / CONTROL_PERIOD
+        return force_x
 
     def _decoupled_x(self, context, f_d, error, error_sum, k_used, xd, accel, J, M):
         """The decoupled law's x (4.19-4.21) with this sample's K_e estimate:
         sets ``accel[0]`` (and cancels the force imbalance's y, phi part in
         ``accel``); returns the force along x and the K_e it used."""
-        c = self._config
-        low, high = c.stiffness_bounds
-        k_e = min(max(self._stiffness.Eval(context)[0], low), high)
-        if c.stiffness_halving_time_s:
-            k_e = max(k_e, k_used * 0.5 ** (CONTROL_PERIOD / c.stiffness_halving_time_s))
-        accel[0] = (c.decoupled_force_gain * error
-                    - c.decoupled_force_damping * k_e * xd[0]) / k_e
+        p, ops = self._p, self._ops
+        k_e = ops.clip(self._value(self._stiffness, context), p.stiffness_low, p.stiffness_high)
+        if self._stiffness_fall:
+            k_e = ops.maximum(k_e, k_used * p.stiffness_fall)
+        accel[0] = (p.decoupled_force_gain * error
+                    - p.decoupled_force_damping * k_e * xd[0]) / k_e
         force_x = f_d
-        if c.decoupled_force_integral_gain:
-            force_x += c.decoupled_force_integral_gain * error_sum
-        if c.force_coupling_cancellation:
+        if self._decoupled_integral:
+            force_x = force_x + p.decoupled_force_integral_gain * error_sum
+        if self._coupling:
             # Lambda^-1 e_x = J M^-1 J^T e_x: the task acceleration a unit
             # force along x gives; cancel its y, phi part for f_d - f.
             v = solve3(M, [J[0][0], J[0][1], J[0][2]])
-            imbalance = c.force_coupling_cancellation * error
+            imbalance = p.force_coupling_cancellation * error
             for i in (1, 2):
-                accel[i] -= (J[i][0] * v[0] + J[i][1] * v[1] + J[i][2] * v[2]) * imbalance
+                accel[i] = accel[i] - (J[i][0] * v[0] + J[i][1] * v[1]
+                                       + J[i][2] * v[2]) * imbalance
         return force_x, k_e
 
     def _contact_joint_terms(self, tau, error, error_lp, J, target, x, xd):
@@ -524,17 +714,16 @@ class HybridControlLaw(LeafSystem):
         compensated in the direction the low-passed force error asks, and
         joint-space stiffness and damping of y and phi. Returns the torques
         and the low-passed force error."""
-        c = self._config
-        if c.force_error_friction_compensation:
-            error_lp += self._error_filter_gain * (error - error_lp)
+        p, ops = self._p, self._ops
+        if self._friction_from_error:
+            error_lp = error_lp + p.error_filter_gain * (error - error_lp)
             push = solve3(J, [1.0, 0.0, 0.0])  # the joints' turn for +x, y and phi held
-            level = c.force_error_friction_compensation * min(
-                max(error_lp / c.force_error_friction_band_n, -1.0), 1.0)
-            friction = self._model.friction_levels
-            tau = [tau[i] + level * friction[i] * math.copysign(1.0, push[i])
-                   for i in range(3)]
+            level = p.force_error_friction_compensation * ops.clip(
+                error_lp / p.force_error_friction_band_n, -1.0, 1.0)
+            friction = self._model.coulomb_levels
+            tau = [tau[i] + level * friction[i] * ops.copysign(1.0, push[i]) for i in range(3)]
         if self._joint_impedance:
-            stiffness, damping = c.pose_joint_stiffness, c.pose_joint_damping
+            stiffness, damping = p.pose_joint_stiffness, p.pose_joint_damping
             e_q = solve3(J, [0.0, target[1] - x[1], target[2] - x[2]])
             v_q = solve3(J, [0.0, xd[1], xd[2]])
             tau = [tau[i] + stiffness[i] * e_q[i] - damping[i] * v_q[i] for i in range(3)]
@@ -542,35 +731,41 @@ class HybridControlLaw(LeafSystem):
 
 
 class HybridController(Diagram):
-    """The thesis's approach and contact controllers, sampled every 1 ms.
+    """The thesis's approach and contact controllers, sampled every 1 ms,
+    for N environments (one config each; a single config: N = 1).
 
-    Input ports (measured signals):
-      tip_pose (3): [x, y, phi] (m, rad); tip_velocity (3) (m/s, rad/s);
-      joint_positions (3) (rad); joint_velocities (3) (rad/s);
-      force (1): the DSP's filtered force (N); force_desired (1) (N);
-      stiffness_estimate (1): k_e for the decoupled law (N/m).
-    Output ports (this sample's values, held between samples):
-      joint_torque_commanded (3) (N m); mode (1): 0 approach, 1 contact;
-      tip_jacobian (9): this sample's J of [x, y, phi] w.r.t. q, row-major,
+    Input ports (measured signals; env-major: environment i's k values at
+    [k i, k (i + 1))):
+      tip_pose (3 N): [x, y, phi] (m, rad); tip_velocity (3 N) (m/s, rad/s);
+      joint_positions (3 N) (rad); joint_velocities (3 N) (rad/s);
+      force (N): the DSP's filtered force (N); force_desired (N) (N);
+      stiffness_estimate (N): k_e for the decoupled law (N/m).
+    Output ports (this sample's values, held between samples; env-major):
+      joint_torque_commanded (3 N) (N m); mode (N): 0 approach, 1 contact;
+      tip_jacobian (9 N): this sample's J of [x, y, phi] w.r.t. q, row-major,
         from the controller's model (for the compensator's J^T n);
-      contact_info (4): [time of the first switch (s) or -1, x, y, phi at
+      contact_info (4 N): [time of the first switch (s) or -1, x, y, phi at
         the latest switch] for the reference generator and identifiers.
-    With ``action_input``: the input policy_action (4, see
+    With ``action_input`` (one environment): the input policy_action (4, see
     :mod:`drake_contact.control.policy_spaces`) and the output held (the
     law's output at the previous sample: its layout's mode, contact_info,
     ...).
 
     A sub-diagram: the law (:class:`HybridControlLaw`, one Python
-    evaluation per sample) and a Demultiplexer that names its outputs.
+    evaluation per sample for all N) and a Demultiplexer that names its
+    outputs.
     """
 
-    def __init__(self, config: HybridControllerConfig, action_input: bool = False):
+    def __init__(self, config: HybridControllerConfig | Sequence[HybridControllerConfig],
+                 action_input: bool = False):
         super().__init__()
         builder = DiagramBuilder()
         law = builder.AddNamedSystem("law", HybridControlLaw(config, action_input))
+        count = law._count
         if action_input:
             builder.ExportOutput(law.GetOutputPort("held"), "held")
-        split = builder.AddNamedSystem("outputs", Demultiplexer(_LAW.sizes))
+        split = builder.AddNamedSystem("outputs",
+                                       Demultiplexer([size * count for size in _LAW.sizes]))
         builder.Connect(law.GetOutputPort("control"), split.get_input_port())
         for port in range(law.num_input_ports()):
             builder.ExportInput(law.get_input_port(port), law.get_input_port(port).get_name())

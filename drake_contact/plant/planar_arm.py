@@ -3,10 +3,12 @@ Appendix C-D), for the hot path: one evaluation is a few dozen scalar
 operations instead of several MultibodyPlant calls.
 
 Every function takes the trigonometric functions it should use (``math``'s
-for Python floats, ``pydrake.symbolic``'s for Expressions), so the same
-formulas serve the controller's model (Python scalars, one callback) and
-the simulator's tip kinematics and the estimator's forward kinematics
-(``SymbolicVectorSystem``s, evaluated in C++ with no Python per step).
+for Python floats, numpy's for arrays over an ensemble's environments,
+``pydrake.symbolic``'s for Expressions), so the same formulas serve the
+controller's model (Python scalars, or arrays elementwise with link
+parameters per environment, one callback) and the simulator's tip
+kinematics and the estimator's forward kinematics (``SymbolicVectorSystem``s,
+evaluated in C++ with no Python per step).
 
 Conventions (thesis Appendices A-C): q = (theta_1, theta_2, theta_3),
 joints about z in the horizontal plane (gravity gives no joint torque);
@@ -117,7 +119,8 @@ def mass_matrix_and_bias(q, qdot, arm: ArmParameters = ArmParameters(), sin=math
 
 def solve3(A, b):
     """x with A x = b for a 3 x 3 A (rows) by Cramer's rule, in scalars
-    (numpy's solve costs more per call than the arithmetic here)."""
+    (numpy's solve costs more per call than the arithmetic here), or
+    elementwise on arrays (one system per environment)."""
     (a, b_, c), (d, e, f), (g, h, i) = A
     co0, co1, co2 = e * i - f * h, f * g - d * i, d * h - e * g
     det = a * co0 + b_ * co1 + c * co2
