@@ -154,9 +154,10 @@ def _add_cluster_arguments(command):
 
 def _add_ensemble_argument(command):
     command.add_argument("--ensemble", type=int, metavar="N", default=DEFAULT_ENSEMBLE,
-                         help="environments simulated together in one diagram per task, for "
-                              "points that share a controller and a duration (default "
-                              f"{DEFAULT_ENSEMBLE}: each point alone); the logs are the same")
+                         help="at most N environments simulated together in one diagram per "
+                              "task, for points that share a controller and a duration "
+                              f"(default {DEFAULT_ENSEMBLE}; 1: each point alone); the logs are "
+                              "the same")
 
 
 def _check_campaign_arguments(args):
