@@ -66,16 +66,19 @@ def test_each_environment_of_an_ensemble_gives_its_single_run_bit_for_bit(family
         _assert_same_logs(result, dc.simulate_scenario(scenario))
 
 
-def test_a_diverging_environment_stops_alone():
-    # Environment 2's wall is far too stiff: its force runs away within
-    # 0.05 s, and its arm's torques then turn non-finite.
+def test_a_diverging_environment_stops_alone_and_the_other_15_run_on():
+    # Environment 5's wall is far too stiff: its force runs away within
+    # 0.05 s, and its arm's torques then turn non-finite. The other 15
+    # complete with their single runs' logs.
     common = ["controller.push.start_time=0"]
+    walls = [3000.0 + 1000.0 * i for i in range(16)]
+    walls[5] = 1e9
     scenarios = [dc.load_scenario("push_constant", common + [f"environment.stiffness={k}"],
-                                  duration=0.6, seed=7 + i)
-                 for i, k in enumerate((3000.0, 6000.0, 1e9, 9000.0))]
+                                  duration=0.6, seed=7 + i) for i, k in enumerate(walls)]
     results = simulate_ensemble(scenarios)
-    assert [r.status for r in results] == ["completed", "completed", "diverged", "completed"]
-    assert "exceeds simulation.force_limit" in results[2].message
+    assert [r.status for r in results] == ["completed"] * 5 + ["diverged"] + ["completed"] * 10
+    assert "exceeds simulation.force_limit" in results[5].message
+    assert " at t = " in results[5].message
     for scenario, result in zip(scenarios, results):
         _assert_same_logs(result, dc.simulate_scenario(scenario))
 
