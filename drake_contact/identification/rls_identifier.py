@@ -52,10 +52,12 @@ e_bar by about 0.1 N; a change of K_e at 20 N moves it by newtons.
 """
 
 import dataclasses as dc
+from collections.abc import Sequence
 
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
+from drake_contact.blocks import environment_configs
 from drake_contact.plant.arm import CONTROL_PERIOD, TIME_TOLERANCE_S, DeclareSampledUpdate
 from drake_contact.errors import ScenarioError
 
@@ -164,94 +166,178 @@ class RlsEstimator:
         return self.theta
 
 
-class RlsIdentifier(LeafSystem):
-    """RLS identification, sampled every 1 ms, active after the first switch.
+def _configs(config, prefix):
+    return environment_configs(config, RlsConfig, prefix)
 
-    Input ports:
-      force (1): filtered force (N); tip_pose (3), tip_velocity (3),
-      tip_acceleration (3): the estimator's (m, m/s, m/s^2; only x is used);
-      contact_info (4): [first switch time or -1, x, y, phi at the switch].
-    Output port: impedance (3): [M_e, B_e, K_e] (kg, N s/m, N/m), theta0
-      until the switch (state output).
-    State: theta (n), P (n x n), with n = 3, or 4 with the force offset;
-      with change detection also [filtered error, samples since the switch,
-      sample of the last reset] (RlsEstimator.detect).
+
+def _switches(config):
+    """The options a config switches on (its structure: the state's shape
+    and which arithmetic runs), by field."""
+    return {"force_offset": bool(config.force_offset),
+            "stiffness_drift": config.stiffness_drift > 0,
+            "change_threshold_n": config.change_threshold_n > 0}
+
+
+def check_structure(configs, prefix="identifiers.rls"):
+    """Raises ScenarioError naming the field if the environments' configs
+    differ in an option they switch on (their numbers may differ)."""
+    first = _switches(configs[0])
+    for i, config in enumerate(configs[1:], start=1):
+        for field, on in _switches(config).items():
+            if on != first[field]:
+                raise ScenarioError(
+                    f"{prefix}.{field}: environment {i} switches it {'on' if on else 'off'} and "
+                    f"environment 0 {'on' if first[field] else 'off'}: the environments must "
+                    "share a structure (which options are on), not only their numbers")
+
+
+class RlsIdentifier(LeafSystem):
+    """RLS identification, sampled every 1 ms, active after the first switch,
+    for N environments (one config each; a single config: N = 1). The
+    configs may differ in their numbers (theta0, p0, lambda, q, the change
+    detector's threshold, time constant and hold-off), not in the options
+    they switch on (:func:`check_structure`).
+
+    Input ports (env-major: environment i's k values at [k i, k i + k)):
+      force (N): filtered force (N); tip_pose (3 N), tip_velocity (3 N),
+      tip_acceleration (3 N): the estimator's (m, m/s, m/s^2; only x is used);
+      contact_info (4 N): [first switch time or -1, x, y, phi at the switch].
+    Output port: impedance (3 N): [M_e, B_e, K_e] (kg, N s/m, N/m), theta0
+      until the environment's switch (state output).
+    State (env-major): theta (n), P (n x n) per environment, with n = 3, or 4
+      with the force offset; with change detection also [filtered error,
+      samples since the switch, sample of the last reset] (RlsEstimator.detect).
+
+    Each environment's step is RlsEstimator.step's arithmetic, operation for
+    operation, elementwise over the arm axis; its two products (P phi and the
+    dot products) are numpy's matmul over the stack, which calls BLAS once per
+    environment as np.dot does for one: every environment's values are bit
+    for bit those of its identifier alone.
     """
 
-    def __init__(self, config: RlsConfig):
+    def __init__(self, config: RlsConfig | Sequence[RlsConfig], *, prefix="identifiers.rls"):
         super().__init__()
-        self._config = config
-        init = RlsEstimator(config)
-        self._n = init.n
-        self._force = self.DeclareVectorInputPort("force", 1)
-        self._pose = self.DeclareVectorInputPort("tip_pose", 3)
-        self._velocity = self.DeclareVectorInputPort("tip_velocity", 3)
-        self._acceleration = self.DeclareVectorInputPort("tip_acceleration", 3)
-        self._contact = self.DeclareVectorInputPort("contact_info", 4)
-        self._impedance = self.DeclareDiscreteState(init.theta[:3])
-        self._state = self.DeclareDiscreteState(np.concatenate([init.theta, init.P.ravel()]))
+        configs = _configs(config, prefix)
+        check_structure(configs, prefix)
+        self._count = count = len(configs)
+        inits = [RlsEstimator(c) for c in configs]
+        self._n = n = inits[0].n
+        self._force = self.DeclareVectorInputPort("force", count)
+        self._pose = self.DeclareVectorInputPort("tip_pose", 3 * count)
+        self._velocity = self.DeclareVectorInputPort("tip_velocity", 3 * count)
+        self._acceleration = self.DeclareVectorInputPort("tip_acceleration", 3 * count)
+        self._contact = self.DeclareVectorInputPort("contact_info", 4 * count)
+        self._impedance = self.DeclareDiscreteState(
+            np.concatenate([init.theta[:3] for init in inits]))
+        self._state = self.DeclareDiscreteState(
+            np.concatenate([np.concatenate([init.theta, init.P.ravel()]) for init in inits]))
         # Plain ints index the groups (cheaper to pass to pydrake).
         self._i_impedance, self._i_state = int(self._impedance), int(self._state)
         DeclareSampledUpdate(self, self._update)
         self.DeclareStateOutputPort("impedance", self._impedance)
-        self._lam = config.forgetting_factor
-        self._drift = config.stiffness_drift
-        self._detect = bool(config.change_threshold_n)
+        # Per environment (N,), as the operands of one environment's step.
+        self._lam = np.array([c.forgetting_factor for c in configs], dtype=float)
+        self._lam_column = self._lam[:, None]
+        self._lam_matrix = self._lam[:, None, None]
+        self._drift = np.array([c.stiffness_drift for c in configs], dtype=float)
+        self._drifting = bool(self._drift[0] > 0)
+        self._detect = bool(configs[0].change_threshold_n > 0)
         if self._detect:
-            self._i_change = int(self.DeclareDiscreteState(np.zeros(3)))
-            self._P0 = init.P0
-        # Work buffers of one sample's step (see _update).
-        n = self._n
-        self._values = np.empty(n + n * n)             # the state [theta, P.ravel()] read
-        self._theta = self._values[:n]
-        self._P = self._values[n:].reshape(n, n)
-        self._phi = np.ones(n)                         # [xe'', xe', xe(, 1)]
-        self._P_phi = np.empty(n)
-        self._gain = np.empty(n)
-        self._gain_column = self._gain[:, None]
-        self._theta_step = np.empty(n)
-        self._B = np.empty((n, n))
-        self._B_transposed = self._B.T
-        self._new = np.empty(n + n * n)                # the state written
-        self._new_theta = self._new[:n]
-        self._new_P = self._new[n:].reshape(n, n)
-        self._new_impedance = self._new[:3]
+            self._i_change = int(self.DeclareDiscreteState(np.zeros(3 * count)))
+            self._P0 = np.stack([init.P0 for init in inits])
+            # change_step's operands: alpha = T / tau, the hold-off less the
+            # tolerance, the threshold.
+            self._alpha = np.array([CONTROL_PERIOD / c.change_time_constant_s for c in configs])
+            self._holdoff = np.array([c.change_holdoff_s - TIME_TOLERANCE_S for c in configs])
+            self._threshold = np.array([c.change_threshold_n for c in configs], dtype=float)
+        # Work buffers of one sample's step (see _update), (N, ...).
+        self._values = np.empty((count, n + n * n))    # the state [theta, P.ravel()] read
+        self._theta = self._values[:, :n]
+        self._P = self._values[:, n:].reshape(count, n, n)
+        self._phi = np.ones((count, n))                # [xe'', xe', xe(, 1)]
+        self._phi_row, self._phi_column = self._phi[:, None, :], self._phi[:, :, None]
+        self._P_phi = np.empty((count, n))
+        self._P_phi_row = self._P_phi[:, None, :]
+        self._P_phi_column = self._P_phi[:, :, None]
+        self._theta_column = self._theta[:, :, None]
+        self._dots = np.empty((count, 1, 1))           # phi^T P phi, then phi^T theta
+        self._dot = self._dots[:, 0, 0]
+        self._scalar = np.empty(count)
+        self._error = np.empty(count)
+        self._gain = np.empty((count, n))
+        self._gain_column = self._gain[:, :, None]
+        self._theta_step = np.empty((count, n))
+        self._B = np.empty((count, n, n))
+        self._B_transposed = self._B.transpose(0, 2, 1)
+        self._new = np.empty((count, n + n * n))      # the state written
+        self._new_theta = self._new[:, :n]
+        self._new_P = self._new[:, n:].reshape(count, n, n)
+        self._new_impedance = self._new[:, :3]
+        self._started = np.empty(count, dtype=bool)
 
     def _update(self, context, state):
         contact = self._contact.Eval(context)
-        if contact[0] < 0:
+        count = self._count
+        if contact[0] < 0 and (count == 1 or max(contact[4::4].tolist()) < 0):
             return
+        started = np.logical_not(np.less(contact[0::4], 0.0), out=self._started)
+        some = np.count_nonzero(started) < count
         # RlsEstimator.step's arithmetic, operation for operation, in the
         # buffers: theta and P (a copy of the state), phi, the new state.
-        self._values[:] = context.get_discrete_state(self._i_state).value()
-        phi, P_phi, gain, B = self._phi, self._P_phi, self._gain, self._B
-        phi[0] = self._acceleration.Eval(context)[0]
-        phi[1] = self._velocity.Eval(context)[0]
-        phi[2] = self._pose.Eval(context)[0] - contact[1]
-        f, lam = self._force.Eval(context)[0], self._lam
+        self._values.reshape(-1)[:] = context.get_discrete_state(self._i_state).value()
+        phi, P_phi, gain, B, lam = self._phi, self._P_phi, self._gain, self._B, self._lam
+        phi[:, 0] = self._acceleration.Eval(context)[0::3]
+        phi[:, 1] = self._velocity.Eval(context)[0::3]
+        np.subtract(self._pose.Eval(context)[0::3], contact[1::4], out=phi[:, 2])
+        f = self._force.Eval(context)
+        if some:  # environments before their switch: zeros in, their state kept
+            phi[~started, :3] = 0.0
+            f = np.where(started, f, 0.0)
         if self._detect:
-            self._detect_change(context, state, phi, f)
-        np.dot(self._P, phi, out=P_phi)
-        np.divide(P_phi, lam + np.dot(phi, P_phi), out=gain)
-        np.multiply(gain, f - np.dot(phi, self._theta), out=self._theta_step)
+            self._detect_change(context, state, f, started, some)
+        np.matmul(self._P, self._phi_column, out=self._P_phi_column)
+        np.matmul(self._phi_row, self._P_phi_column, out=self._dots)
+        np.add(lam, self._dot, out=self._scalar)
+        np.divide(P_phi, self._scalar[:, None], out=gain)
+        np.matmul(self._phi_row, self._theta_column, out=self._dots)
+        np.subtract(f, self._dot, out=self._error)
+        np.multiply(gain, self._error[:, None], out=self._theta_step)
         np.add(self._theta, self._theta_step, out=self._new_theta)
-        np.multiply(self._gain_column, P_phi, out=B)
+        np.multiply(self._gain_column, self._P_phi_row, out=B)
         np.subtract(self._P, B, out=B)
-        np.divide(B, lam, out=B)
+        np.divide(B, self._lam_matrix, out=B)
         np.add(B, self._B_transposed, out=self._new_P)
         np.multiply(self._new_P, 0.5, out=self._new_P)
-        if self._drift:
-            self._new_P[2, 2] += self._drift * self._new_theta[2] * self._new_theta[2]
-        state.get_mutable_value(self._i_state)[:] = self._new
-        state.get_mutable_value(self._i_impedance)[:] = self._new_impedance
+        if self._drifting:
+            K = self._new_theta[:, 2]
+            term = self._drift * K
+            term *= K
+            self._new_P[:, 2, 2] += term
+        new, impedance = self._new, self._new_impedance
+        if some:
+            new = np.where(started[:, None], new, self._values)
+            impedance = np.where(started[:, None], new[:, :3],
+                                 context.get_discrete_state(self._i_impedance).value()
+                                 .reshape(count, 3))
+        state.get_mutable_value(self._i_state)[:] = new.reshape(-1)
+        state.get_mutable_value(self._i_impedance)[:] = impedance.reshape(-1)
 
-    def _detect_change(self, context, state, phi, f):
+    def _detect_change(self, context, state, f, started, some):
         """RlsEstimator.detect on the state: may reset the P read."""
-        error, samples, last = context.get_discrete_state(self._i_change).value()
-        samples += 1.0
-        error, reset = RlsEstimator.change_step(error, samples, last, f - np.dot(phi, self._theta),
-                                                self._config)
-        if reset:
-            self._P[:] = self._P0
-            error, last = 0.0, samples
-        state.get_mutable_value(self._i_change)[:] = [error, samples, last]
+        change = context.get_discrete_state(self._i_change).value().reshape(self._count, 3)
+        error, samples, last = change[:, 0], change[:, 1] + 1.0, change[:, 2]
+        np.matmul(self._phi_row, self._theta_column, out=self._dots)
+        prediction_error = f - self._dot
+        error = error + self._alpha * (prediction_error - error)
+        armed = (samples - last) * CONTROL_PERIOD >= self._holdoff
+        reset = armed & (np.abs(error) > self._threshold)
+        if some:
+            reset &= started
+        if np.count_nonzero(reset):
+            self._P[reset] = self._P0[reset]
+            error = np.where(reset, 0.0, error)
+            last = np.where(reset, samples, last)
+        new = np.stack([error, samples, last], axis=1)
+        if some:
+            new = np.where(started[:, None], new, change)
+        state.get_mutable_value(self._i_change)[:] = new.reshape(-1)
