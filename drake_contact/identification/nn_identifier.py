@@ -278,6 +278,11 @@ class ImpedanceNetwork:
         self._probe_pre = np.empty((count, 3, HIDDEN))
         self._probe_hidden = np.empty((count, 3, HIDDEN))
         self._probe_dots = np.empty((count, 3, 1, 1))
+        self._probe_reversed = self._probe[:, ::-1].copy()           # (a*, v*, x*)
+        self._impedance_buffer = np.empty((count, 3))
+        self._S_column = self._S[:, None]
+        self._c = np.empty((count, 1))
+        self._slope = np.empty((count, HIDDEN))
 
     def _rows(self, array, size=None):
         """``array`` as (N, k) rows: one environment's 1-D array, or the stack."""
@@ -323,14 +328,19 @@ class ImpedanceNetwork:
         """One gradient step (see :meth:`train`), the new weights into
         ``out`` (N, size); returns f_hat (N,) before the step."""
         f_hat = self._forward(weights, x0, x1, x2)
-        c = np.negative(f - f_hat) * self._S           # -e S
+        c, slope = self._c, self._slope
+        np.subtract(f, f_hat, out=c[:, 0])             # -e S
+        np.negative(c, out=c)
+        np.multiply(c, self._S_column, out=c)
         a = self._a                                    # -e S v_1: f'(h)
-        np.multiply(c[:, None], weights[:, self._SPLIT + 1:], out=a)
+        np.multiply(c, weights[:, self._SPLIT + 1:], out=a)
         np.multiply(a, 0.5, out=a)
         hidden = self._hidden
-        np.multiply(a, np.subtract(1.0, hidden * hidden), out=a)
+        np.multiply(hidden, hidden, out=slope)
+        np.subtract(1.0, slope, out=slope)
+        np.multiply(a, slope, out=a)
         np.multiply(self._a_column, self._u1_row, out=self._step_W)
-        np.multiply(self._h1, c[:, None], out=self._step_v)
+        np.multiply(self._h1, c, out=self._step_v)
         np.multiply(self._step, self._eta_column, out=self._step)
         np.subtract(weights, self._step, out=out)
         return f_hat
@@ -345,11 +355,14 @@ class ImpedanceNetwork:
         return self._S[:, None] * (weights[:, self._SPLIT, None] + self._probe_dots[:, :, 0, 0])
 
     def _impedance(self, weights):
-        """(M_e, B_e, K_e), each (N,) (see :meth:`impedance`)."""
+        """(M_e, B_e, K_e) as a buffer (N, 3) (see :meth:`impedance`)."""
         f = self._probe_outputs(weights)
-        f_x, f_xv, f_xva = f[:, 0], f[:, 1], f[:, 2]
-        xs, vs, acc = self._probe.T
-        return (f_xva - f_xv) / acc, (f_xv - f_x) / vs, f_x / xs
+        impedance = self._impedance_buffer
+        np.subtract(f[:, 2:], f[:, 1:2], out=impedance[:, 0:1])   # (f_xva - f_xv) / a*
+        np.subtract(f[:, 1:2], f[:, 0:1], out=impedance[:, 1:2])  # (f_xv - f_x) / v*
+        impedance[:, 2] = f[:, 0]                                 # f_x / x*
+        np.divide(impedance, self._probe_reversed, out=impedance)
+        return impedance
 
     def _single(self, weights):
         return np.ndim(weights) == 1
@@ -381,7 +394,7 @@ class ImpedanceNetwork:
 
     def impedance(self, weights):
         """(M_e, B_e, K_e) by probing at (x*, v*, a*); (N, 3) for stacked weights."""
-        impedance = np.stack(self._impedance(self._rows(weights)), axis=1)
+        impedance = self._impedance(self._rows(weights)).copy()
         return impedance[0] if self._single(weights) else impedance
 
     # Self-scaling (normalization: running): plain array expressions over
@@ -654,7 +667,7 @@ class NnIdentifier(LeafSystem):
         net, new = self._net, self._new
         weights = context.get_discrete_state(self._i_weights).value().reshape(count, net.size)
         f_hat = net._train(weights, x[0], x[1], x[2], f, new)
-        impedance = np.stack(net._impedance(new), axis=1)
+        impedance = net._impedance(new)
         self._store(context, state, started, some, ((self._i_weights, new),
                                                     (self._i_impedance, impedance),
                                                     (self._i_estimate, f_hat + f_s)))

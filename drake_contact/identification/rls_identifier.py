@@ -60,6 +60,7 @@ from pydrake.systems.framework import LeafSystem
 from drake_contact.blocks import environment_configs
 from drake_contact.plant.arm import CONTROL_PERIOD, TIME_TOLERANCE_S, DeclareSampledUpdate
 from drake_contact.errors import ScenarioError
+from drake_contact.identification.stacked import column, constants, matvec, rowdot
 
 
 @dc.dataclass
@@ -209,10 +210,9 @@ class RlsIdentifier(LeafSystem):
       samples since the switch, sample of the last reset] (RlsEstimator.detect).
 
     Each environment's step is RlsEstimator.step's arithmetic, operation for
-    operation, elementwise over the arm axis; its two products (P phi and the
-    dot products) are numpy's matmul over the stack, which calls BLAS once per
-    environment as np.dot does for one: every environment's values are bit
-    for bit those of its identifier alone.
+    operation, elementwise over the arm axis, its products per environment
+    (:mod:`drake_contact.identification.stacked`): every environment's
+    values are bit for bit those of its identifier alone.
     """
 
     def __init__(self, config: RlsConfig | Sequence[RlsConfig], *, prefix="identifiers.rls"):
@@ -235,73 +235,80 @@ class RlsIdentifier(LeafSystem):
         self._i_impedance, self._i_state = int(self._impedance), int(self._state)
         DeclareSampledUpdate(self, self._update)
         self.DeclareStateOutputPort("impedance", self._impedance)
-        # Per environment (N,), as the operands of one environment's step.
-        self._lam = np.array([c.forgetting_factor for c in configs], dtype=float)
-        self._lam_column = self._lam[:, None]
-        self._lam_matrix = self._lam[:, None, None]
-        self._drift = np.array([c.stiffness_drift for c in configs], dtype=float)
-        self._drifting = bool(self._drift[0] > 0)
-        self._detect = bool(configs[0].change_threshold_n > 0)
+        # The arithmetic is written once (drake_contact.identification.stacked):
+        # one environment's buffers without the environment axis and its
+        # constants Python floats, as alone; N environments' (N, ...).
+        self._one = one = count == 1
+        self._lam = constants([c.forgetting_factor for c in configs], one)
+        self._lam_column = column(self._lam, one)
+        self._lam_matrix = self._lam if one else self._lam[:, None, None]
+        self._drift = constants([c.stiffness_drift for c in configs], one)
+        self._drifting = configs[0].stiffness_drift > 0
+        self._detect = configs[0].change_threshold_n > 0
         if self._detect:
             self._i_change = int(self.DeclareDiscreteState(np.zeros(3 * count)))
-            self._P0 = np.stack([init.P0 for init in inits])
+            self._P0 = inits[0].P0 if one else np.stack([init.P0 for init in inits])
             # change_step's operands: alpha = T / tau, the hold-off less the
             # tolerance, the threshold.
-            self._alpha = np.array([CONTROL_PERIOD / c.change_time_constant_s for c in configs])
-            self._holdoff = np.array([c.change_holdoff_s - TIME_TOLERANCE_S for c in configs])
-            self._threshold = np.array([c.change_threshold_n for c in configs], dtype=float)
-        # Work buffers of one sample's step (see _update), (N, ...).
-        self._values = np.empty((count, n + n * n))    # the state [theta, P.ravel()] read
-        self._theta = self._values[:, :n]
-        self._P = self._values[:, n:].reshape(count, n, n)
-        self._phi = np.ones((count, n))                # [xe'', xe', xe(, 1)]
-        self._phi_row, self._phi_column = self._phi[:, None, :], self._phi[:, :, None]
-        self._P_phi = np.empty((count, n))
-        self._P_phi_row = self._P_phi[:, None, :]
-        self._P_phi_column = self._P_phi[:, :, None]
-        self._theta_column = self._theta[:, :, None]
-        self._dots = np.empty((count, 1, 1))           # phi^T P phi, then phi^T theta
-        self._dot = self._dots[:, 0, 0]
-        self._scalar = np.empty(count)
-        self._error = np.empty(count)
-        self._gain = np.empty((count, n))
-        self._gain_column = self._gain[:, :, None]
-        self._theta_step = np.empty((count, n))
-        self._B = np.empty((count, n, n))
-        self._B_transposed = self._B.transpose(0, 2, 1)
-        self._new = np.empty((count, n + n * n))      # the state written
-        self._new_theta = self._new[:, :n]
-        self._new_P = self._new[:, n:].reshape(count, n, n)
-        self._new_impedance = self._new[:, :3]
-        self._started = np.empty(count, dtype=bool)
+            self._alpha = constants([CONTROL_PERIOD / c.change_time_constant_s for c in configs],
+                                    one)
+            self._holdoff = constants([c.change_holdoff_s - TIME_TOLERANCE_S for c in configs],
+                                      one)
+            self._threshold = constants([c.change_threshold_n for c in configs], one)
+        # Where each environment's values are in the inputs: x of a pose
+        # (3 per environment), the switch time and x of contact_info (4).
+        self._x = 0 if one else slice(0, None, 3)
+        self._time = 0 if one else slice(0, None, 4)
+        self._x_switch = 1 if one else slice(1, None, 4)
+        self._f = 0 if one else slice(None)
+        # Work buffers of one sample's step (see _update).
+        lead = () if one else (count,)
+        self._values = np.empty(lead + (n + n * n,))   # the state [theta, P.ravel()] read
+        self._theta = self._values[..., :n]
+        self._P = self._values[..., n:].reshape(lead + (n, n))
+        self._phi = np.ones(lead + (n,))               # [xe'', xe', xe(, 1)]
+        self._P_phi = np.empty(lead + (n,))
+        self._P_phi_row = self._P_phi[..., None, :]
+        self._gain = np.empty(lead + (n,))
+        self._gain_column = self._gain[..., :, None]
+        self._theta_step = np.empty(lead + (n,))
+        self._B = np.empty(lead + (n, n))
+        self._B_transposed = np.swapaxes(self._B, -1, -2)
+        self._new = np.empty(lead + (n + n * n,))     # the state written
+        self._new_theta = self._new[..., :n]
+        self._new_P = self._new[..., n:].reshape(lead + (n, n))
+        self._new_impedance = self._new[..., :3]
+
+    def _started(self, contact):
+        """Which environments are past their switch (N,), or None when all
+        are (always for one: it is not stepped before)."""
+        if self._one:
+            return None
+        started = np.logical_not(np.less(contact[self._time], 0.0))
+        return None if np.count_nonzero(started) == self._count else started
 
     def _update(self, context, state):
         contact = self._contact.Eval(context)
         count = self._count
         if contact[0] < 0 and (count == 1 or max(contact[4::4].tolist()) < 0):
             return
-        started = np.logical_not(np.less(contact[0::4], 0.0), out=self._started)
-        some = np.count_nonzero(started) < count
+        started = self._started(contact)
         # RlsEstimator.step's arithmetic, operation for operation, in the
         # buffers: theta and P (a copy of the state), phi, the new state.
         self._values.reshape(-1)[:] = context.get_discrete_state(self._i_state).value()
-        phi, P_phi, gain, B, lam = self._phi, self._P_phi, self._gain, self._B, self._lam
-        phi[:, 0] = self._acceleration.Eval(context)[0::3]
-        phi[:, 1] = self._velocity.Eval(context)[0::3]
-        np.subtract(self._pose.Eval(context)[0::3], contact[1::4], out=phi[:, 2])
-        f = self._force.Eval(context)
-        if some:  # environments before their switch: zeros in, their state kept
+        phi, P_phi, gain, B, one = self._phi, self._P_phi, self._gain, self._B, self._one
+        phi[..., 0] = self._acceleration.Eval(context)[self._x]
+        phi[..., 1] = self._velocity.Eval(context)[self._x]
+        phi[..., 2] = self._pose.Eval(context)[self._x] - contact[self._x_switch]
+        f = self._force.Eval(context)[self._f]
+        if started is not None:  # environments before their switch: zeros in, state kept
             phi[~started, :3] = 0.0
             f = np.where(started, f, 0.0)
         if self._detect:
-            self._detect_change(context, state, f, started, some)
-        np.matmul(self._P, self._phi_column, out=self._P_phi_column)
-        np.matmul(self._phi_row, self._P_phi_column, out=self._dots)
-        np.add(lam, self._dot, out=self._scalar)
-        np.divide(P_phi, self._scalar[:, None], out=gain)
-        np.matmul(self._phi_row, self._theta_column, out=self._dots)
-        np.subtract(f, self._dot, out=self._error)
-        np.multiply(gain, self._error[:, None], out=self._theta_step)
+            self._detect_change(context, state, f, started)
+        matvec(self._P, phi, P_phi)
+        np.divide(P_phi, column(self._lam + rowdot(phi, P_phi), one), out=gain)
+        np.multiply(gain, column(f - rowdot(phi, self._theta), one), out=self._theta_step)
         np.add(self._theta, self._theta_step, out=self._new_theta)
         np.multiply(self._gain_column, self._P_phi_row, out=B)
         np.subtract(self._P, B, out=B)
@@ -309,12 +316,10 @@ class RlsIdentifier(LeafSystem):
         np.add(B, self._B_transposed, out=self._new_P)
         np.multiply(self._new_P, 0.5, out=self._new_P)
         if self._drifting:
-            K = self._new_theta[:, 2]
-            term = self._drift * K
-            term *= K
-            self._new_P[:, 2, 2] += term
+            K = self._new_theta[..., 2]
+            self._new_P[..., 2, 2] += self._drift * K * K
         new, impedance = self._new, self._new_impedance
-        if some:
+        if started is not None:
             new = np.where(started[:, None], new, self._values)
             impedance = np.where(started[:, None], new[:, :3],
                                  context.get_discrete_state(self._i_impedance).value()
@@ -322,22 +327,28 @@ class RlsIdentifier(LeafSystem):
         state.get_mutable_value(self._i_state)[:] = new.reshape(-1)
         state.get_mutable_value(self._i_impedance)[:] = impedance.reshape(-1)
 
-    def _detect_change(self, context, state, f, started, some):
+    def _detect_change(self, context, state, f, started):
         """RlsEstimator.detect on the state: may reset the P read."""
-        change = context.get_discrete_state(self._i_change).value().reshape(self._count, 3)
-        error, samples, last = change[:, 0], change[:, 1] + 1.0, change[:, 2]
-        np.matmul(self._phi_row, self._theta_column, out=self._dots)
-        prediction_error = f - self._dot
-        error = error + self._alpha * (prediction_error - error)
+        change = context.get_discrete_state(self._i_change).value()
+        if not self._one:
+            change = change.reshape(self._count, 3)
+        error, samples, last = change[..., 0], change[..., 1] + 1.0, change[..., 2]
+        error = error + self._alpha * (f - rowdot(self._phi, self._theta) - error)
         armed = (samples - last) * CONTROL_PERIOD >= self._holdoff
-        reset = armed & (np.abs(error) > self._threshold)
-        if some:
+        reset = armed & (abs(error) > self._threshold)
+        if self._one:
+            if reset:
+                self._P[:] = self._P0
+                error, last = 0.0, samples
+            state.get_mutable_value(self._i_change)[:] = [error, samples, last]
+            return
+        if started is not None:
             reset &= started
         if np.count_nonzero(reset):
             self._P[reset] = self._P0[reset]
             error = np.where(reset, 0.0, error)
             last = np.where(reset, samples, last)
         new = np.stack([error, samples, last], axis=1)
-        if some:
+        if started is not None:
             new = np.where(started[:, None], new, change)
         state.get_mutable_value(self._i_change)[:] = new.reshape(-1)
