@@ -95,6 +95,7 @@ from pydrake.systems.framework import LeafSystem
 from drake_contact.blocks import environment_configs
 from drake_contact.plant.arm import CONTROL_PERIOD, DeclareSampledUpdate
 from drake_contact.errors import ScenarioError
+from drake_contact.identification.stacked import column, constants, products
 
 HIDDEN = 4
 OUTPUT_LAYERS = ("linear", "appendix_e")
@@ -215,9 +216,8 @@ def _configs(config):
 
 
 class ImpedanceNetwork:
-    """The network's arithmetic on flat weight vectors (no Drake), for N
-    environments (one config each; a single config: N = 1), weights stacked
-    (N, size).
+    """The network's arithmetic on flat weight vectors (no Drake), for one
+    environment or N (one config each), weights (size,) or stacked (N, size).
 
     Layout: W (HIDDEN x 4, inputs [1, u]) then v (1 + HIDDEN), row-major.
 
@@ -225,9 +225,10 @@ class ImpedanceNetwork:
     system trains and probes it every 1 ms on 4-vectors, where numpy's
     per-call cost outweighs the arithmetic): the same IEEE operations, in
     the same order, as the array expressions in the docstrings, elementwise
-    over the arm axis, every matrix product numpy's ``matmul`` over the
-    stack, which calls BLAS once per environment as ``np.dot`` does for
-    one, so that each environment's values are bit for bit its own.
+    over the arm axis, written once for one environment (its scalars Python
+    floats, its buffers without the environment axis) and N
+    (:mod:`drake_contact.identification.stacked`), so that each
+    environment's values are bit for bit its own alone.
 
     The public methods take one environment's arrays (1-D) or the stack
     (N, ...) and answer likewise.
@@ -242,52 +243,58 @@ class ImpedanceNetwork:
         self.configs = configs
         self.c = configs[0]
         self.count = count = len(configs)
+        self._one = one = count == 1
+        self._matvec, self._rowdot = products(one)
+        lead = () if one else (count,)
+        self._lead = lead
         # Per environment, as the operands of one environment's arithmetic.
         scales = np.array([c.input_scale for c in configs], dtype=float)   # (N, 3)
-        self.scale = scales[0] if count == 1 else scales
-        self._scales = scales
-        self._S = np.array([c.output_scale_n for c in configs], dtype=float)
-        self._eta = np.array([c.learning_rate for c in configs], dtype=float)
-        self._eta_column = self._eta[:, None]
-        self._eta_matrix = self._eta[:, None, None]
+        self.scale = scales[0] if one else scales
+        self._s = [constants(scales[:, k], one) for k in range(3)]
+        self._S = constants([c.output_scale_n for c in configs], one)
+        self._eta = constants([c.learning_rate for c in configs], one)
+        self._eta_column = column(self._eta, one)
+        self._eta_matrix = self._eta if one else self._eta[:, None, None]
         self._probe = np.array([c.probe for c in configs], dtype=float)     # (N, 3): x*, v*, a*
+        self._xs, self._vs, self._acc = (constants(self._probe[:, k], one) for k in range(3))
+        self._probe_point = self._probe[0] if one else self._probe
         self._floor = np.array([c.scale_floor for c in configs], dtype=float)
+        # Where v_0, v_1: and W are in the weights.
         split = self._SPLIT
-        self._u1 = np.ones((count, 4))                 # [1, scale * x]
-        self._u1_column, self._u1_row = self._u1[:, :, None], self._u1[:, None, :]
-        self._h1 = np.ones((count, HIDDEN + 1))        # [1, f(h)]
-        self._hidden = self._h1[:, 1:]
-        self._hidden_column = self._hidden[:, :, None]
-        self._pre = np.empty((count, HIDDEN))
-        self._pre_column = self._pre[:, :, None]
-        self._dots = np.empty((count, 1, 1))
-        self._dot = self._dots[:, 0, 0]
-        self._a = np.empty((count, HIDDEN))
-        self._a_column = self._a[:, :, None]
-        self._step = np.empty((count, self.size))     # eta [grad_W.ravel(), grad_v]
-        self._step_W = self._step[:, :split].reshape(count, HIDDEN, 4)
-        self._step_v = self._step[:, split:]
-        # The probes' inputs [1, scale * x*] (N, 3 probes, 4) and their hidden layers.
+        self._v0 = split if one else (slice(None), split)
+        self._v1 = slice(split + 1, None) if one else (slice(None), slice(split + 1, None))
+        self._w_part = slice(None, split) if one else (slice(None), slice(None, split))
+        self._v_part = slice(split, None) if one else (slice(None), slice(split, None))
+        self._u1 = np.ones(lead + (4,))                # [1, scale * x]
+        self._u_at = [k if one else (slice(None), k) for k in range(4)]
+        self._u1_row = self._u1[..., None, :]
+        self._h1 = np.ones(lead + (HIDDEN + 1,))       # [1, f(h)]
+        self._hidden = self._h1[..., 1:]
+        self._pre = np.empty(lead + (HIDDEN,))
+        self._a = np.empty(lead + (HIDDEN,))
+        self._a_column = self._a[..., :, None]
+        self._slope = np.empty(lead + (HIDDEN,))
+        self._step = np.empty(lead + (self.size,))     # eta [grad_W.ravel(), grad_v]
+        self._step_W = self._step[..., :split].reshape(lead + (HIDDEN, 4))
+        self._step_v = self._step[..., split:]
+        # The probes' inputs [1, scale * x*] (3 probes x 4) and their hidden layers.
         xs, vs, acc = self._probe.T
         zeros = np.zeros(count)
         points = np.stack([np.stack([xs, zeros, zeros], 1), np.stack([xs, vs, zeros], 1),
                            np.stack([xs, vs, acc], 1)], 1)                  # (N, 3, 3)
-        self._probe_inputs = np.concatenate([np.ones((count, 3, 1)), scales[:, None, :] * points],
-                                            axis=2)
-        self._probe_columns = self._probe_inputs[:, :, :, None]
-        self._probe_pre = np.empty((count, 3, HIDDEN))
-        self._probe_hidden = np.empty((count, 3, HIDDEN))
-        self._probe_dots = np.empty((count, 3, 1, 1))
-        self._probe_reversed = self._probe[:, ::-1].copy()           # (a*, v*, x*)
-        self._impedance_buffer = np.empty((count, 3))
-        self._S_column = self._S[:, None]
-        self._c = np.empty((count, 1))
-        self._slope = np.empty((count, HIDDEN))
-
-    def _rows(self, array, size=None):
-        """``array`` as (N, k) rows: one environment's 1-D array, or the stack."""
-        array = np.asarray(array, dtype=float)
-        return array.reshape(self.count, -1 if size is None else size)
+        inputs = np.concatenate([np.ones((count, 3, 1)), scales[:, None, :] * points], axis=2)
+        self._probe_inputs = inputs[0] if one else inputs
+        self._probe_input_rows = [self._probe_inputs[..., p, :] for p in range(3)]
+        self._probe_pre = np.empty(lead + (3, HIDDEN))
+        self._probe_rows = [self._probe_pre[..., p, :] for p in range(3)]
+        self._probe_hidden = np.empty(lead + (3, HIDDEN))
+        self._probe_hidden_rows = [self._probe_hidden[..., p, :] for p in range(3)]
+        # The running normalization's: per-environment scalars of a row
+        # (v_0, s_f, ...) by self._at[k], a column of ones, zeros, x's floor.
+        self._at = [k if one else (slice(None), k) for k in range(4)]
+        self._ones = np.ones(lead + (1,))
+        self._zero = 0.0 if one else np.zeros(count)
+        self._floor_x = constants(self._floor[:, 0], one)
 
     def unpack(self, weights):
         """W and v of one environment's weights (or the stack's (N, ...))."""
@@ -305,37 +312,33 @@ class ImpedanceNetwork:
         np.subtract(pre, 1.0, out=out)
 
     def _W(self, weights):
-        return weights[:, :self._SPLIT].reshape(self.count, HIDDEN, 4)
+        return weights[self._w_part].reshape(self._lead + (HIDDEN, 4))
 
     def _pre_activations(self, weights, x0, x1, x2):
         """[1, scale x] into the buffer u1 and W [1, scale x] into pre; x0,
-        x1, x2 (N,)."""
-        u1, scales = self._u1, self._scales
-        np.multiply(scales[:, 0], x0, out=u1[:, 1])
-        np.multiply(scales[:, 1], x1, out=u1[:, 2])
-        np.multiply(scales[:, 2], x2, out=u1[:, 3])
-        np.matmul(self._W(weights), self._u1_column, out=self._pre_column)
+        x1, x2 each environment's (a float for one, else (N,))."""
+        u1, at = self._u1, self._u_at
+        s0, s1, s2 = self._s
+        u1[at[1]] = s0 * x0
+        u1[at[2]] = s1 * x1
+        u1[at[3]] = s2 * x2
+        self._matvec(self._W(weights), u1, self._pre)
 
     def _forward(self, weights, x0, x1, x2):
-        """f_hat (N,) for raw x = (x0, x1, x2); [1, scale x] and [1, f(h)]
-        into the buffers."""
+        """f_hat for raw x = (x0, x1, x2); [1, scale x] and [1, f(h)] into
+        the buffers."""
         self._pre_activations(weights, x0, x1, x2)
         self._f(self._pre, self._hidden)
-        np.matmul(weights[:, None, self._SPLIT + 1:], self._hidden_column, out=self._dots)
-        return self._S * (weights[:, self._SPLIT] + self._dot)
+        return self._S * (weights[self._v0] + self._rowdot(weights[self._v1], self._hidden))
 
     def _train(self, weights, x0, x1, x2, f, out):
         """One gradient step (see :meth:`train`), the new weights into
-        ``out`` (N, size); returns f_hat (N,) before the step."""
+        ``out``; returns f_hat before the step."""
         f_hat = self._forward(weights, x0, x1, x2)
-        c, slope = self._c, self._slope
-        np.subtract(f, f_hat, out=c[:, 0])             # -e S
-        np.negative(c, out=c)
-        np.multiply(c, self._S_column, out=c)
-        a = self._a                                    # -e S v_1: f'(h)
-        np.multiply(c, weights[:, self._SPLIT + 1:], out=a)
+        c = column(-(f - f_hat) * self._S, self._one)  # -e S
+        a, slope, hidden = self._a, self._slope, self._hidden
+        np.multiply(c, weights[self._v1], out=a)       # -e S v_1: f'(h)
         np.multiply(a, 0.5, out=a)
-        hidden = self._hidden
         np.multiply(hidden, hidden, out=slope)
         np.subtract(1.0, slope, out=slope)
         np.multiply(a, slope, out=a)
@@ -345,36 +348,37 @@ class ImpedanceNetwork:
         np.subtract(weights, self._step, out=out)
         return f_hat
 
-    def _probe_outputs(self, weights):
-        """f_hat at the three probe points, (N, 3)."""
-        np.matmul(self._W(weights)[:, None], self._probe_columns,
-                  out=self._probe_pre[:, :, :, None])
-        self._f(self._probe_pre, self._probe_hidden)
-        np.matmul(weights[:, None, None, self._SPLIT + 1:], self._probe_hidden[:, :, :, None],
-                  out=self._probe_dots)
-        return self._S[:, None] * (weights[:, self._SPLIT, None] + self._probe_dots[:, :, 0, 0])
+    def _probe_layers(self, weights):
+        """W [1, scale x*] of the three probes into the buffer probe_pre."""
+        W = self._W(weights)
+        for u, row in zip(self._probe_input_rows, self._probe_rows):
+            self._matvec(W, u, row)
 
     def _impedance(self, weights):
-        """(M_e, B_e, K_e) as a buffer (N, 3) (see :meth:`impedance`)."""
-        f = self._probe_outputs(weights)
-        impedance = self._impedance_buffer
-        np.subtract(f[:, 2:], f[:, 1:2], out=impedance[:, 0:1])   # (f_xva - f_xv) / a*
-        np.subtract(f[:, 1:2], f[:, 0:1], out=impedance[:, 1:2])  # (f_xv - f_x) / v*
-        impedance[:, 2] = f[:, 0]                                 # f_x / x*
-        np.divide(impedance, self._probe_reversed, out=impedance)
-        return impedance
+        """(M_e, B_e, K_e), each a float for one environment, else (N,)
+        (see :meth:`impedance`)."""
+        self._probe_layers(weights)
+        self._f(self._probe_pre, self._probe_hidden)
+        v0, v1, S = weights[self._v0], weights[self._v1], self._S
+        f_x, f_xv, f_xva = (S * (v0 + self._rowdot(v1, h)) for h in self._probe_hidden_rows)
+        return (f_xva - f_xv) / self._acc, (f_xv - f_x) / self._vs, f_x / self._xs
 
-    def _single(self, weights):
+    @staticmethod
+    def _single(weights):
         return np.ndim(weights) == 1
+
+    def _stack(self, weights, x):
+        """Checks one environment's weights and x (1-D) or the stack's."""
+        weights, x = np.asarray(weights, dtype=float), np.asarray(x, dtype=float)
+        if (weights.ndim == 1) != self._one:
+            raise ValueError(f"weights of shape {weights.shape} for {self.count} environments")
+        return weights, x.reshape(self._lead + (3,))
 
     def forward(self, weights, x):
         """f_hat (N) and the inputs [1, scale x] and hidden activations for
         raw x = (xe, xe', xe''); stacked (N, ...) for stacked arguments."""
-        single = self._single(weights)
-        x = self._rows(x, 3)
-        f_hat = self._forward(self._rows(weights), x[:, 0], x[:, 1], x[:, 2])
-        if single:
-            return f_hat[0], self._u1[0].copy(), self._hidden[0].copy()
+        weights, x = self._stack(weights, x)
+        f_hat = self._forward(weights, x[..., 0], x[..., 1], x[..., 2])
         return f_hat, self._u1.copy(), self._hidden.copy()
 
     def train(self, weights, x, f):
@@ -385,100 +389,105 @@ class ImpedanceNetwork:
             v -= eta (-e S [1, f(h)])
             W -= eta outer(-e S v_1: (1 - f(h)^2) / 2, [1, u])
         """
-        single = self._single(weights)
-        x = self._rows(x, 3)
-        new = np.empty((self.count, self.size))
-        f_hat = self._train(self._rows(weights), x[:, 0], x[:, 1], x[:, 2],
-                            self._rows(f, 1)[:, 0], new)
-        return (new[0], f_hat[0]) if single else (new, f_hat)
+        weights, x = self._stack(weights, x)
+        new = np.empty_like(weights)
+        f_hat = self._train(weights, x[..., 0], x[..., 1], x[..., 2],
+                            np.asarray(f, dtype=float), new)
+        return new, f_hat
 
     def impedance(self, weights):
         """(M_e, B_e, K_e) by probing at (x*, v*, a*); (N, 3) for stacked weights."""
-        impedance = self._impedance(self._rows(weights)).copy()
-        return impedance[0] if self._single(weights) else impedance
+        weights, _ = self._stack(weights, np.zeros(self._lead + (3,)))
+        return np.stack(np.broadcast_arrays(*self._impedance(weights)), axis=-1)
 
     # Self-scaling (normalization: running): plain array expressions over
-    # the stack's rows (N, k); the scales s = (s_x, s_v, s_a, s_f) are
-    # arguments (the system's state). The public methods take one
-    # environment's 1-D arrays or the stack.
+    # the last axis, one environment's vectors or N's rows (N, k), the
+    # per-environment scalars indexed by self._at (a float for one); the
+    # scales s = (s_x, s_v, s_a, s_f) are arguments (the system's state).
+
+    def _shaped(self, array, size):
+        """One environment's (size,) array, or N's (N, size)."""
+        return np.asarray(array, dtype=float).reshape(self._lead + (size,))
 
     def _update_scales(self, scales, x, f):
-        return np.maximum(scales, np.abs(np.concatenate([x, f[:, None]], axis=1)))
+        return np.maximum(scales, np.abs(np.concatenate([x, np.reshape(f, self._lead + (1,))],
+                                                        axis=-1)))
 
     def _forward_scaled(self, weights, x, scales):
         W, v = self.unpack(weights)
-        u = np.concatenate([np.ones((len(x), 1)), x / scales[:, :3]], axis=1)
-        hidden = 2.0 / (1.0 + np.exp(-(W @ u[:, :, None])[:, :, 0])) - 1.0
-        dot = (v[:, None, 1:] @ hidden[:, :, None])[:, 0, 0]
-        return scales[:, 3] * (v[:, 0] + dot), u, hidden
+        at = self._at
+        u = np.concatenate([self._ones, x / scales[..., :3]], axis=-1)
+        pre = np.empty(self._lead + (HIDDEN,))
+        self._matvec(W, u, pre)
+        hidden = 2.0 / (1.0 + np.exp(-pre)) - 1.0
+        return scales[at[3]] * (v[at[0]] + self._rowdot(v[..., 1:], hidden)), u, hidden
 
     def _train_scaled(self, weights, x, f, scales):
         W, v = self.unpack(weights)
         f_hat, u, hidden = self._forward_scaled(weights, x, scales)
-        e = (f - f_hat) / scales[:, 3]
-        minus_e = -e
-        grad_v = minus_e[:, None] * np.concatenate([np.ones((len(x), 1)), hidden], axis=1)
-        back = minus_e[:, None] * v[:, 1:] * 0.5 * (1.0 - hidden**2)
-        grad_W = back[:, :, None] * u[:, None, :]
-        new = np.concatenate([(W - self._eta_matrix * grad_W).reshape(len(x), -1),
-                              v - self._eta_column * grad_v], axis=1)
+        minus_e = column(-((f - f_hat) / scales[self._at[3]]), self._one)
+        grad_v = minus_e * np.concatenate([self._ones, hidden], axis=-1)
+        back = minus_e * v[..., 1:] * 0.5 * (1.0 - hidden**2)
+        grad_W = back[..., :, None] * u[..., None, :]
+        new = np.concatenate([(W - self._eta_matrix * grad_W).reshape(self._lead + (-1,)),
+                              v - self._eta_column * grad_v], axis=-1)
         return new, f_hat
 
     def _jacobian(self, weights, x, scales):
         W, v = self.unpack(weights)
         _, _, hidden = self._forward_scaled(weights, x, scales)
-        back = v[:, 1:] * 0.5 * (1.0 - hidden**2)
-        d_u = (W[:, :, 1:].transpose(0, 2, 1) @ back[:, :, None])[:, :, 0]
-        return (scales[:, 3, None] * d_u / scales[:, :3])[:, ::-1]
+        back = v[..., 1:] * 0.5 * (1.0 - hidden**2)
+        d_u = np.swapaxes(W[..., :, 1:], -1, -2) @ back[..., None]
+        return (column(scales[self._at[3]], self._one) * d_u[..., 0] / scales[..., :3])[..., ::-1]
 
     def _secants(self, weights, x, scales, probe=None):
-        count = len(x)
+        at = self._at
         if probe is None:
-            floor, x0 = self._floor[:, 0], x[:, 0]
-            xs = np.where(np.abs(x0) >= floor, x0, np.where(x0 >= 0, floor, -floor))
-            vs, acc = scales[:, 1], scales[:, 2]
+            floor, x0 = self._floor_x, x[at[0]]
+            if self._one:
+                xs = float(x0) if abs(x0) >= floor else (floor if x0 >= 0 else -floor)
+            else:
+                xs = np.where(np.abs(x0) >= floor, x0, np.where(x0 >= 0, floor, -floor))
+            vs, acc = scales[at[1]], scales[at[2]]
         else:
-            xs, vs, acc = probe.T
-        zeros = np.zeros(count)
-        f_x, f_xv, f_xva = (self._forward_scaled(weights, np.stack(p, axis=1), scales)[0]
-                            for p in ((xs, zeros, zeros), (xs, vs, zeros), (xs, vs, acc)))
-        return (np.stack([f_xva - f_xv, f_xv - f_x, f_x], axis=1),
-                np.stack([acc, vs, xs], axis=1))
+            xs, vs, acc = probe[at[0]], probe[at[1]], probe[at[2]]
+        zero = self._zero
+        f_x, f_xv, f_xva = (self._forward_scaled(weights, self._point(p), scales)[0]
+                            for p in ((xs, zero, zero), (xs, vs, zero), (xs, vs, acc)))
+        return self._point((f_xva - f_xv, f_xv - f_x, f_x)), self._point((acc, vs, xs))
+
+    def _point(self, values):
+        """One environment's 3 values as an array, or N's (N, 3)."""
+        return np.array(values) if self._one else np.stack(values, axis=-1)
 
     @staticmethod
     def _average_secants(sums, rises, steps, decay):
-        new = np.concatenate([decay * sums[:, :3] + steps * rises,
-                              decay * sums[:, 3:] + steps * steps], axis=1)
-        return new, new[:, :3] / new[:, 3:]
-
-    def _answer(self, single, *arrays):
-        answers = tuple(a[0] if single else a for a in arrays)
-        return answers if len(answers) > 1 else answers[0]
+        new = np.concatenate([decay * sums[..., :3] + steps * rises,
+                              decay * sums[..., 3:] + steps * steps], axis=-1)
+        return new, new[..., :3] / new[..., 3:]
 
     def update_scales(self, scales, x, f):
         """The running scales after the sample x = (xe, xe', xe''), f (N,
         less f_s): elementwise max(scales, |x|, |f|)."""
-        single = np.ndim(scales) == 1
-        return self._answer(single, self._update_scales(
-            self._rows(scales, 4), self._rows(x, 3), self._rows(f, 1)[:, 0]))
+        return self._update_scales(self._shaped(scales, 4), self._shaped(x, 3),
+                                   np.asarray(f, dtype=float))
 
     def forward_scaled(self, weights, x, scales):
         """f_hat = s_f (v . [1, f(W [1, x / s])]) and the inputs [1, x / s]
         and hidden activations."""
-        return self._answer(self._single(weights), *self._forward_scaled(
-            self._rows(weights), self._rows(x, 3), self._rows(scales, 4)))
+        return self._forward_scaled(self._shaped(weights, self.size), self._shaped(x, 3),
+                                    self._shaped(scales, 4))
 
     def train_scaled(self, weights, x, f, scales):
         """One step on 1/2 ((f - f_hat) / s_f)^2; returns the new weights and
         f_hat before the step (see the module doc)."""
-        return self._answer(self._single(weights), *self._train_scaled(
-            self._rows(weights), self._rows(x, 3), self._rows(f, 1)[:, 0],
-            self._rows(scales, 4)))
+        return self._train_scaled(self._shaped(weights, self.size), self._shaped(x, 3),
+                                  np.asarray(f, dtype=float), self._shaped(scales, 4))
 
     def jacobian(self, weights, x, scales):
         """(M_e, B_e, K_e) = d f_hat / d (xe'', xe', xe) at x."""
-        return self._answer(self._single(weights), self._jacobian(
-            self._rows(weights), self._rows(x, 3), self._rows(scales, 4)))
+        return self._jacobian(self._shaped(weights, self.size), self._shaped(x, 3),
+                              self._shaped(scales, 4))
 
     def operating_point(self, weights, x, scales, probe=None):
         """(M_e, B_e, K_e) by the thesis's secants at x* = xe (at least its
@@ -490,9 +499,9 @@ class ImpedanceNetwork:
         """The secants of :meth:`operating_point` as (rises, steps), each in
         the order (M_e, B_e, K_e): rises (f_xva - f_xv, f_xv - f_x, f_x)
         (N) over steps (a*, v*, x*)."""
-        return self._answer(self._single(weights), *self._secants(
-            self._rows(weights), self._rows(x, 3), self._rows(scales, 4),
-            None if probe is None else self._rows(probe, 3)))
+        return self._secants(self._shaped(weights, self.size), self._shaped(x, 3),
+                             self._shaped(scales, 4),
+                             None if probe is None else self._shaped(probe, 3))
 
     @staticmethod
     def average_secants(sums, rises, steps, decay):
@@ -500,12 +509,8 @@ class ImpedanceNetwork:
         of step * rise (3), sum of step^2 (3)] decayed by ``decay`` and
         updated with this sample's secants; returns (new sums, (M_e, B_e,
         K_e) = sum step * rise / sum step^2)."""
-        single = np.ndim(sums) == 1
-        new, impedance = ImpedanceNetwork._average_secants(
-            *(np.asarray(a, dtype=float).reshape(-1, n)
-              for a, n in ((sums, 6), (rises, 3), (steps, 3))),
-            np.asarray(decay, dtype=float).reshape(-1, 1))
-        return (new[0], impedance[0]) if single else (new, impedance)
+        return ImpedanceNetwork._average_secants(
+            *(np.asarray(a, dtype=float) for a in (sums, rises, steps)), decay)
 
     def initial_weights(self, seed):
         """One environment's initial weights (its config's spread) from its seed."""
@@ -538,32 +543,30 @@ class AppendixEImpedanceNetwork(ImpedanceNetwork):
 
     def _forward(self, weights, x0, x1, x2):
         self._pre_activations(weights, x0, x1, x2)
-        np.matmul(weights[:, None, self._SPLIT + 1:], self._pre_column, out=self._dots)
-        t = weights[:, self._SPLIT] + self._dot
+        t = weights[self._v0] + self._rowdot(weights[self._v1], self._pre)
         self._f(self._pre.copy(), self._hidden)
         return self._S * (2.0 / (1.0 + np.exp(-t)) - 1.0)
 
     def _train(self, weights, x0, x1, x2, f, out):
         f_hat = self._forward(weights, x0, x1, x2)
-        S = self._S
+        S, one = self._S, self._one
         q = f_hat / S
         d = (f - f_hat) * S * 0.5 * (1.0 - q * q)
-        v1 = weights[:, self._SPLIT + 1:]
+        v1 = weights[self._v1]
         hidden = self._hidden
-        back = d[:, None] * v1 * 0.5 * (1.0 - hidden * hidden)
-        split = self._SPLIT
-        out[:, :split] = weights[:, :split] + (
-            self._eta_matrix * (back[:, :, None] * self._u1_row)).reshape(self.count, split)
-        out[:, split:] = weights[:, split:] + (self._eta * d)[:, None] * self._h1
+        back = column(d, one) * v1 * 0.5 * (1.0 - hidden * hidden)
+        outer = back[..., :, None] * self._u1_row
+        out[self._w_part] = weights[self._w_part] + (self._eta_matrix * outer).reshape(
+            self._lead + (self._SPLIT,))
+        out[self._v_part] = weights[self._v_part] + column(self._eta * d, one) * self._h1
         return f_hat
 
-    def _probe_outputs(self, weights):
-        np.matmul(self._W(weights)[:, None], self._probe_columns,
-                  out=self._probe_pre[:, :, :, None])
-        np.matmul(weights[:, None, None, self._SPLIT + 1:], self._probe_pre[:, :, :, None],
-                  out=self._probe_dots)
-        t = weights[:, self._SPLIT, None] + self._probe_dots[:, :, 0, 0]
-        return self._S[:, None] * (2.0 / (1.0 + np.exp(-t)) - 1.0)
+    def _impedance(self, weights):
+        self._probe_layers(weights)
+        v0, v1, S = weights[self._v0], weights[self._v1], self._S
+        f_x, f_xv, f_xva = (S * (2.0 / (1.0 + np.exp(-(v0 + self._rowdot(v1, pre)))) - 1.0)
+                            for pre in self._probe_rows)
+        return (f_xva - f_xv) / self._acc, (f_xv - f_x) / self._vs, f_x / self._xs
 
 
 def make_network(config: NnIdentifierConfig | Sequence[NnIdentifierConfig]) -> ImpedanceNetwork:
@@ -609,7 +612,8 @@ class NnIdentifier(LeafSystem):
         self._acceleration = self.DeclareVectorInputPort("tip_acceleration", 3 * count)
         self._contact = self.DeclareVectorInputPort("contact_info", 4 * count)
         self._weights = self.DeclareDiscreteState(weights.reshape(-1))
-        self._impedance = self.DeclareDiscreteState(net.impedance(weights).reshape(-1))
+        self._impedance = self.DeclareDiscreteState(
+            net.impedance(weights[0] if count == 1 else weights).reshape(-1))
         self._estimate = self.DeclareDiscreteState(count)
         self._switch = self.DeclareDiscreteState(2 * count)
         first = configs[0]
@@ -622,9 +626,9 @@ class NnIdentifier(LeafSystem):
         self._readout = first.readout
         self._averaged = first.readout_time_constant_s > 0
         if self._averaged:
-            self._readout_decay = np.array([float(np.exp(-CONTROL_PERIOD
-                                                         / c.readout_time_constant_s))
-                                            for c in configs])
+            self._readout_decay = column(constants(
+                [np.exp(-CONTROL_PERIOD / c.readout_time_constant_s) for c in configs],
+                count == 1), count == 1)
             # The readout's weighted sums: [sum step * rise, sum step^2] (3 + 3).
             self._i_sums = int(self.DeclareDiscreteState(6 * count))
         # Plain ints index the groups (cheaper to pass to pydrake).
@@ -633,72 +637,106 @@ class NnIdentifier(LeafSystem):
         DeclareSampledUpdate(self, self._update)
         self.DeclareStateOutputPort("impedance", self._impedance)
         self.DeclareStateOutputPort("force_estimate", self._estimate)
-        self._started = np.empty(count, dtype=bool)
-        self._x = np.empty((3, count))                 # (xe, xe', xe'') per environment
+        # Where each environment's values are in the inputs and the state
+        # (drake_contact.identification.stacked: one environment's are
+        # scalars, as alone; N's (N,) arrays).
+        self._one = one = count == 1
+        self._x = 0 if one else slice(0, None, 3)
+        self._time = 0 if one else slice(0, None, 4)
+        self._x_switch = 1 if one else slice(1, None, 4)
+        self._each = 0 if one else slice(None)
+        self._columns = (0, 1, 2) if one else tuple(slice(k, None, 3) for k in range(3))
         self._new = np.empty((count, net.size))
+
+    def _started(self, contact):
+        """Which environments are past their switch (N,), or None when all
+        are (always for one: it is not stepped before)."""
+        if self._one:
+            return None
+        started = np.logical_not(np.less(contact[self._time], 0.0))
+        return None if np.count_nonzero(started) == self._count else started
 
     def _update(self, context, state):
         contact = self._contact.Eval(context)
-        count = self._count
+        count, net = self._count, self._net
         if contact[0] < 0 and (count == 1 or max(contact[4::4].tolist()) < 0):
             return
-        started = np.logical_not(np.less(contact[0::4], 0.0), out=self._started)
-        some = np.count_nonzero(started) < count
-        x = self._x
-        np.subtract(self._pose.Eval(context)[0::3], contact[1::4], out=x[0])
-        x[1] = self._velocity.Eval(context)[0::3]
-        x[2] = self._acceleration.Eval(context)[0::3]
-        force = self._force.Eval(context)
-        switch = context.get_discrete_state(self._i_switch).value().reshape(count, 2)
-        first = np.equal(switch[:, 0], 0.0)
-        f_s = switch[:, 1]
-        if some:  # environments before their switch: zeros in, their state kept
-            first &= started
-            x[:, ~started] = 0.0
-            force = np.where(started, force, 0.0)
-        if np.count_nonzero(first):
-            f_s = np.where(first, np.where(self._offset, force, 0.0), f_s)
-            new_switch = np.stack([np.where(started, 1.0, switch[:, 0]), f_s], axis=1)
-            state.get_mutable_value(self._i_switch)[:] = new_switch.reshape(-1)
+        started = self._started(contact)
+        x0 = self._pose.Eval(context)[self._x] - contact[self._x_switch]
+        x1 = self._velocity.Eval(context)[self._x]
+        x2 = self._acceleration.Eval(context)[self._x]
+        force = self._force.Eval(context)[self._each]
+        switch = context.get_discrete_state(self._i_switch).value()
+        if self._one:
+            switched, f_s = switch.tolist()
+            if not switched:
+                f_s = force if self._offset[0] else 0.0
+                state.get_mutable_value(self._i_switch)[:] = (1.0, f_s)
+        else:
+            switch = switch.reshape(count, 2)
+            first, f_s = np.equal(switch[:, 0], 0.0), switch[:, 1]
+            if started is not None:  # environments before their switch: zeros in, state kept
+                first &= started
+                x0, x1, x2, force = (np.where(started, v, 0.0) for v in (x0, x1, x2, force))
+            if np.count_nonzero(first):
+                f_s = np.where(first, np.where(self._offset, force, 0.0), f_s)
+                switched = (np.ones(count) if started is None
+                            else np.where(started, 1.0, switch[:, 0]))
+                new_switch = np.stack([switched, f_s], axis=1)
+                state.get_mutable_value(self._i_switch)[:] = new_switch.reshape(-1)
         f = force - f_s
         if self._running:
-            self._update_running(context, state, x.T, f, f_s, started, some)
+            x = net._point((x0, x1, x2))
+            self._update_running(context, state, x, f, f_s, started)
             return
-        net, new = self._net, self._new
-        weights = context.get_discrete_state(self._i_weights).value().reshape(count, net.size)
-        f_hat = net._train(weights, x[0], x[1], x[2], f, new)
-        impedance = net._impedance(new)
-        self._store(context, state, started, some, ((self._i_weights, new),
-                                                    (self._i_impedance, impedance),
-                                                    (self._i_estimate, f_hat + f_s)))
+        weights = context.get_discrete_state(self._i_weights).value()
+        if started is None:  # into the state
+            new = state.get_mutable_value(self._i_weights)
+            new = new if self._one else new.reshape(count, net.size)
+        else:
+            new = self._new
+        if not self._one:
+            weights = weights.reshape(count, net.size)
+        f_hat = net._train(weights, x0, x1, x2, f, new)
+        M_e, B_e, K_e = net._impedance(new)
+        if started is None:
+            impedance = state.get_mutable_value(self._i_impedance)
+            for column, value in zip(self._columns, (M_e, B_e, K_e)):
+                impedance[column] = value
+            state.get_mutable_value(self._i_estimate)[self._each] = f_hat + f_s
+            return
+        self._store(context, state, started, ((self._i_weights, new),
+                                              (self._i_impedance, np.stack([M_e, B_e, K_e], 1)),
+                                              (self._i_estimate, f_hat + f_s)))
 
-    def _store(self, context, state, started, some, groups):
-        """Writes each (group, new values (N, k)) of the started environments."""
+    def _store(self, context, state, started, groups):
+        """Writes each (group, new values (N, k)) of the started environments
+        (all when ``started`` is None)."""
         for group, value in groups:
-            if some:
+            if started is not None:
                 old = context.get_discrete_state(group).value().reshape(self._count, -1)
-                value = np.where(started[:, None], value.reshape(self._count, -1), old)
-            state.get_mutable_value(group)[:] = value.reshape(-1)
+                value = np.where(started[:, None], np.reshape(value, (self._count, -1)), old)
+            state.get_mutable_value(group)[:] = value if self._one else np.reshape(value, -1)
 
-    def _update_running(self, context, state, x, f, f_s, started, some):
-        net, count = self._net, self._count
-        scales = net._update_scales(
-            context.get_discrete_state(self._i_scales).value().reshape(count, 4), x, f)
-        weights, f_hat = net._train_scaled(
-            context.get_discrete_state(self._i_weights).value().reshape(count, net.size),
-            x, f, scales)
+    def _update_running(self, context, state, x, f, f_s, started):
+        net = self._net
+        lead = net._lead
+
+        def read(group, size):
+            return context.get_discrete_state(group).value().reshape(lead + (size,))
+        scales = net._update_scales(read(self._i_scales, 4), x, f)
+        weights, f_hat = net._train_scaled(read(self._i_weights, net.size), x, f, scales)
         groups = []
         if self._readout == "jacobian":
             impedance = net._jacobian(weights, x, scales)
         elif self._averaged:
             sums, impedance = net._average_secants(
-                context.get_discrete_state(self._i_sums).value().reshape(count, 6),
-                *net._secants(weights, x, scales), self._readout_decay[:, None])
+                read(self._i_sums, 6), *net._secants(weights, x, scales), self._readout_decay)
             groups.append((self._i_sums, sums))
         else:
-            probe = net._probe if self._readout == "probe" else None
+            probe = net._probe_point if self._readout == "probe" else None
             rises, steps = net._secants(weights, x, scales, probe)
             impedance = rises / steps
         groups += [(self._i_scales, scales), (self._i_weights, weights),
                    (self._i_impedance, impedance), (self._i_estimate, f_hat + f_s)]
-        self._store(context, state, started, some, groups)
+        self._store(context, state, started, groups)

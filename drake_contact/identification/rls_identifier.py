@@ -60,7 +60,7 @@ from pydrake.systems.framework import LeafSystem
 from drake_contact.blocks import environment_configs
 from drake_contact.plant.arm import CONTROL_PERIOD, TIME_TOLERANCE_S, DeclareSampledUpdate
 from drake_contact.errors import ScenarioError
-from drake_contact.identification.stacked import column, constants, matvec, rowdot
+from drake_contact.identification.stacked import column, constants, products
 
 
 @dc.dataclass
@@ -239,6 +239,7 @@ class RlsIdentifier(LeafSystem):
         # one environment's buffers without the environment axis and its
         # constants Python floats, as alone; N environments' (N, ...).
         self._one = one = count == 1
+        self._matvec, self._rowdot = products(one)
         self._lam = constants([c.forgetting_factor for c in configs], one)
         self._lam_column = column(self._lam, one)
         self._lam_matrix = self._lam if one else self._lam[:, None, None]
@@ -261,6 +262,9 @@ class RlsIdentifier(LeafSystem):
         self._time = 0 if one else slice(0, None, 4)
         self._x_switch = 1 if one else slice(1, None, 4)
         self._f = 0 if one else slice(None)
+        # An environment's k-th value of a buffer's last axis (a scalar for one).
+        self._at = [k if one else (slice(None), k) for k in range(3)]
+        self._K_K = (2, 2) if one else (slice(None), 2, 2)
         # Work buffers of one sample's step (see _update).
         lead = () if one else (count,)
         self._values = np.empty(lead + (n + n * n,))   # the state [theta, P.ravel()] read
@@ -297,18 +301,19 @@ class RlsIdentifier(LeafSystem):
         # buffers: theta and P (a copy of the state), phi, the new state.
         self._values.reshape(-1)[:] = context.get_discrete_state(self._i_state).value()
         phi, P_phi, gain, B, one = self._phi, self._P_phi, self._gain, self._B, self._one
-        phi[..., 0] = self._acceleration.Eval(context)[self._x]
-        phi[..., 1] = self._velocity.Eval(context)[self._x]
-        phi[..., 2] = self._pose.Eval(context)[self._x] - contact[self._x_switch]
+        at = self._at
+        phi[at[0]] = self._acceleration.Eval(context)[self._x]
+        phi[at[1]] = self._velocity.Eval(context)[self._x]
+        phi[at[2]] = self._pose.Eval(context)[self._x] - contact[self._x_switch]
         f = self._force.Eval(context)[self._f]
         if started is not None:  # environments before their switch: zeros in, state kept
             phi[~started, :3] = 0.0
             f = np.where(started, f, 0.0)
         if self._detect:
             self._detect_change(context, state, f, started)
-        matvec(self._P, phi, P_phi)
-        np.divide(P_phi, column(self._lam + rowdot(phi, P_phi), one), out=gain)
-        np.multiply(gain, column(f - rowdot(phi, self._theta), one), out=self._theta_step)
+        self._matvec(self._P, phi, P_phi)
+        np.divide(P_phi, column(self._lam + self._rowdot(phi, P_phi), one), out=gain)
+        np.multiply(gain, column(f - self._rowdot(phi, self._theta), one), out=self._theta_step)
         np.add(self._theta, self._theta_step, out=self._new_theta)
         np.multiply(self._gain_column, self._P_phi_row, out=B)
         np.subtract(self._P, B, out=B)
@@ -316,8 +321,8 @@ class RlsIdentifier(LeafSystem):
         np.add(B, self._B_transposed, out=self._new_P)
         np.multiply(self._new_P, 0.5, out=self._new_P)
         if self._drifting:
-            K = self._new_theta[..., 2]
-            self._new_P[..., 2, 2] += self._drift * K * K
+            K = self._new_theta[self._at[2]]
+            self._new_P[self._K_K] += self._drift * K * K
         new, impedance = self._new, self._new_impedance
         if started is not None:
             new = np.where(started[:, None], new, self._values)
@@ -332,8 +337,9 @@ class RlsIdentifier(LeafSystem):
         change = context.get_discrete_state(self._i_change).value()
         if not self._one:
             change = change.reshape(self._count, 3)
-        error, samples, last = change[..., 0], change[..., 1] + 1.0, change[..., 2]
-        error = error + self._alpha * (f - rowdot(self._phi, self._theta) - error)
+        at = self._at
+        error, samples, last = change[at[0]], change[at[1]] + 1.0, change[at[2]]
+        error = error + self._alpha * (f - self._rowdot(self._phi, self._theta) - error)
         armed = (samples - last) * CONTROL_PERIOD >= self._holdoff
         reset = armed & (abs(error) > self._threshold)
         if self._one:
