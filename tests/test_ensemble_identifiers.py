@@ -3,6 +3,7 @@ one AddIdentifiers sub-diagram) serving N environments equals, bit for bit,
 N one-environment ones on the same inputs, through the contact switch."""
 
 import dataclasses as dc
+import sys
 
 import numpy as np
 import pytest
@@ -10,7 +11,7 @@ from pydrake.systems.framework import DiagramBuilder
 
 from drake_contact import load_scenario
 from drake_contact.errors import ScenarioError
-from drake_contact.identification.identifiers import AddIdentifiers
+from drake_contact.identification.identifiers import AddIdentifiers, IdentifierConfig
 from drake_contact.identification.nn_identifier import NnIdentifier, NnIdentifierConfig
 from drake_contact.identification.rls_identifier import RlsConfig, RlsIdentifier
 from drake_contact.plant.arm import CONTROL_PERIOD
@@ -173,11 +174,10 @@ def _identify_scenarios():
     return scenarios
 
 
-def test_add_identifiers_over_three_scenarios_is_three_alone_bit_for_bit():
-    """identify_styrofoam with other walls, a forgetting factor, another
-    sensor chain (the matched filters) and seeds: one sub-diagram for the
-    three, driven like three single ones, equals them at every sample."""
-    scenarios = _identify_scenarios()
+def _mismatches_of_sub_diagrams(scenarios, samples=SAMPLES):
+    """Drives AddIdentifiers over ``scenarios`` and one per scenario on the
+    same inputs; returns (mismatched output values, values compared, the
+    N-environment sub-diagram and its context)."""
     count = len(scenarios)
 
     def built(scenario):
@@ -188,40 +188,113 @@ def test_add_identifiers_over_three_scenarios_is_three_alone_bit_for_bit():
     ones = [built(s) for s in scenarios]
     inputs = [many.get_input_port(p).get_name() for p in range(many.num_input_ports())]
     outputs = [many.get_output_port(p).get_name() for p in range(many.num_output_ports())]
-    assert {"contact_info", "force", "force_raw", "tip_pose"} <= set(inputs)
-    signals = _signals(count, SAMPLES, seed=2)
+    signals = _signals(count, samples, seed=2)
     mismatches = compared = 0
-    for k in range(SAMPLES):
+    for k in range(samples):
         values = []
         for i, (one, context) in enumerate(ones):
-            value = {name: np.array(signals[i][k].get(name.replace("_raw", ""), [0.0]))
-                     for name in inputs}
-            value = {name: np.resize(v, one.GetInputPort(name).size()) for name, v in value.items()}
+            value = {name: np.resize(signals[i][k].get(name.replace("_raw", ""), [0.0]),
+                                     one.GetInputPort(name).size()) for name in inputs}
             for name, v in value.items():
                 one.GetInputPort(name).FixValue(context, v)
             values.append(value)
         for name in inputs:
             many.GetInputPort(name).FixValue(many_context,
                                              np.concatenate([v[name] for v in values]))
-        for one, context in ones:
+        for i, (one, context) in enumerate(ones):
             for name in outputs:
                 mine = one.GetOutputPort(name).Eval(context)
                 size = len(mine)
-                i = [o for o, _ in ones].index(one)
                 theirs = many.GetOutputPort(name).Eval(many_context)[size * i:size * (i + 1)]
                 mismatches += np.count_nonzero(mine != theirs)
                 compared += size
         time = (k + 1) * CONTROL_PERIOD
         for system, context in [(many, many_context)] + ones:
-            state = system.EvalUniquePeriodicDiscreteUpdate(context)
-            context.SetDiscreteState(state)
+            context.SetDiscreteState(system.EvalUniquePeriodicDiscreteUpdate(context))
             context.SetTime(time)
-    assert compared == SAMPLES * count * sum(
+    assert compared == samples * count * sum(
         ones[0][0].GetOutputPort(n).size() for n in outputs)
+    return mismatches, many, many_context
+
+
+def test_add_identifiers_over_three_scenarios_is_three_alone_bit_for_bit():
+    """identify_styrofoam with other walls, a forgetting factor, another
+    sensor chain (the matched filters) and seeds: one sub-diagram for the
+    three, driven like three single ones, equals them at every sample."""
+    scenarios = _identify_scenarios()
+    mismatches, many, context = _mismatches_of_sub_diagrams(scenarios)
     assert mismatches == 0
+    sizes = {many.get_input_port(p).get_name(): many.get_input_port(p).size()
+             for p in range(many.num_input_ports())}
+    assert {"contact_info": 12, "force": 3, "force_raw": 3, "tip_pose": 9}.items() <= sizes.items()
     # The estimates moved after the switch (the comparison is not vacuous).
-    estimate = many.GetOutputPort("impedance_rls").Eval(many_context).reshape(count, 3)
+    estimate = many.GetOutputPort("impedance_rls").Eval(context).reshape(len(scenarios), 3)
     assert np.all(estimate[:, 2] != 2.0e5)
+
+
+PLUGIN = """
+from pydrake.systems.framework import LeafSystem
+
+
+class Ratio(LeafSystem):  # K_e = (f - 5 N) / (x - x at the switch), one environment
+    def __init__(self, floor):
+        super().__init__()
+        self.DeclareVectorInputPort("force", 1)
+        self.DeclareVectorInputPort("tip_pose", 3)
+        self.DeclareVectorInputPort("contact_info", 4)
+        state = self.DeclareDiscreteState(3)
+        self.DeclarePeriodicDiscreteUpdateEvent(1e-3, 0.0, self.update)
+        self.DeclareStateOutputPort("impedance", state)
+        self.floor = floor
+
+    def update(self, context, state):
+        info = self.GetInputPort("contact_info").Eval(context)
+        if info[0] < 0:
+            return
+        dx = self.GetInputPort("tip_pose").Eval(context)[0] - info[1]
+        f = self.GetInputPort("force").Eval(context)[0]
+        state.set_value([0.0, 0.0, (f - 5.0) / max(dx, self.floor)])
+
+
+def make(options):
+    return Ratio(options.get("floor", 1e-4))
+"""
+
+
+@pytest.fixture
+def ratio_plugin(tmp_path):
+    """A one-environment identifier plug-in (no ``ensemble``), installed as
+    pip would (a .dist-info with entry_points.txt on the path)."""
+    site = tmp_path / "site"
+    (site / "ratio_plugin").mkdir(parents=True)
+    (site / "ratio_plugin" / "__init__.py").write_text(PLUGIN)
+    info = site / "ratio_plugin-1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: ratio_plugin\nVersion: 1.0\n")
+    (info / "entry_points.txt").write_text(
+        "[drake_contact.identifiers]\nratio = ratio_plugin:make\n")
+    sys.path.insert(0, str(site))
+    yield
+    sys.path.remove(str(site))
+    sys.modules.pop("ratio_plugin", None)
+
+
+def test_a_plugin_without_ensemble_runs_as_copies_behind_glue(ratio_plugin):
+    """N copies of a one-environment plug-in behind a Demultiplexer per
+    input and a Multiplexer per output: the same env-major ports, each
+    environment what its copy computes alone."""
+    scenarios = _identify_scenarios()[:2]
+    for i, scenario in enumerate(scenarios):
+        scenario.identifiers = [IdentifierConfig(name="ratio", kind="ratio",
+                                                 options={"floor": 1e-4 * (1 + i)}),
+                                scenario.identifiers[0]]
+    mismatches, many, context = _mismatches_of_sub_diagrams(scenarios)
+    assert mismatches == 0
+    inner = {s.get_name(): s for s in many.GetSystems()}
+    copies = {s.get_name() for s in inner["identifier_ratio"].GetSystems()}
+    assert {"identifier_ratio_0", "identifier_ratio_1"} <= copies
+    assert many.GetOutputPort("impedance_ratio").size() == 6
+    assert np.all(many.GetOutputPort("impedance_ratio").Eval(context)[2::3] != 0.0)
 
 
 def test_add_identifiers_systems_one_per_entry_and_banks_of_filters():

@@ -95,7 +95,7 @@ from pydrake.systems.framework import LeafSystem
 from drake_contact.blocks import environment_configs
 from drake_contact.plant.arm import CONTROL_PERIOD, DeclareSampledUpdate
 from drake_contact.errors import ScenarioError
-from drake_contact.identification.stacked import column, constants, products
+from drake_contact.identification.stacked import at, constants, every, products, together
 
 HIDDEN = 4
 OUTPUT_LAYERS = ("linear", "appendix_e")
@@ -253,20 +253,19 @@ class ImpedanceNetwork:
         self._s = [constants(scales[:, k], one) for k in range(3)]
         self._S = constants([c.output_scale_n for c in configs], one)
         self._eta = constants([c.learning_rate for c in configs], one)
-        self._eta_column = column(self._eta, one)
-        self._eta_matrix = self._eta if one else self._eta[:, None, None]
+        self._eta_matrix = self._eta if one else self._eta[:, :, None]
         self._probe = np.array([c.probe for c in configs], dtype=float)     # (N, 3): x*, v*, a*
         self._xs, self._vs, self._acc = (constants(self._probe[:, k], one) for k in range(3))
         self._probe_point = self._probe[0] if one else self._probe
         self._floor = np.array([c.scale_floor for c in configs], dtype=float)
         # Where v_0, v_1: and W are in the weights.
         split = self._SPLIT
-        self._v0 = split if one else (slice(None), split)
+        self._v0 = at(split, one)
         self._v1 = slice(split + 1, None) if one else (slice(None), slice(split + 1, None))
         self._w_part = slice(None, split) if one else (slice(None), slice(None, split))
         self._v_part = slice(split, None) if one else (slice(None), slice(split, None))
         self._u1 = np.ones(lead + (4,))                # [1, scale * x]
-        self._u_at = [k if one else (slice(None), k) for k in range(4)]
+        self._u_at = [at(k, one) for k in range(4)]
         self._u1_row = self._u1[..., None, :]
         self._h1 = np.ones(lead + (HIDDEN + 1,))       # [1, f(h)]
         self._hidden = self._h1[..., 1:]
@@ -291,9 +290,9 @@ class ImpedanceNetwork:
         self._probe_hidden_rows = [self._probe_hidden[..., p, :] for p in range(3)]
         # The running normalization's: per-environment scalars of a row
         # (v_0, s_f, ...) by self._at[k], a column of ones, zeros, x's floor.
-        self._at = [k if one else (slice(None), k) for k in range(4)]
+        self._at = [at(k, one) for k in range(4)]
         self._ones = np.ones(lead + (1,))
-        self._zero = 0.0 if one else np.zeros(count)
+        self._zero = 0.0 if one else np.zeros((count, 1))
         self._floor_x = constants(self._floor[:, 0], one)
 
     def unpack(self, weights):
@@ -335,7 +334,7 @@ class ImpedanceNetwork:
         """One gradient step (see :meth:`train`), the new weights into
         ``out``; returns f_hat before the step."""
         f_hat = self._forward(weights, x0, x1, x2)
-        c = column(-(f - f_hat) * self._S, self._one)  # -e S
+        c = -(f - f_hat) * self._S                     # -e S
         a, slope, hidden = self._a, self._slope, self._hidden
         np.multiply(c, weights[self._v1], out=a)       # -e S v_1: f'(h)
         np.multiply(a, 0.5, out=a)
@@ -344,7 +343,7 @@ class ImpedanceNetwork:
         np.multiply(a, slope, out=a)
         np.multiply(self._a_column, self._u1_row, out=self._step_W)
         np.multiply(self._h1, c, out=self._step_v)
-        np.multiply(self._step, self._eta_column, out=self._step)
+        np.multiply(self._step, self._eta, out=self._step)
         np.subtract(weights, self._step, out=out)
         return f_hat
 
@@ -374,11 +373,20 @@ class ImpedanceNetwork:
             raise ValueError(f"weights of shape {weights.shape} for {self.count} environments")
         return weights, x.reshape(self._lead + (3,))
 
+    def _scalar(self, f):
+        """Each environment's scalar: a float for one, a column (N, 1) for N."""
+        f = np.asarray(f, dtype=float)
+        return f if self._one else f.reshape(self.count, 1)
+
+    def _columns(self, x):
+        """x's three values per environment, each a float or a column (N, 1)."""
+        return tuple(x[self._at[k]] for k in range(3))
+
     def forward(self, weights, x):
         """f_hat (N) and the inputs [1, scale x] and hidden activations for
         raw x = (xe, xe', xe''); stacked (N, ...) for stacked arguments."""
         weights, x = self._stack(weights, x)
-        f_hat = self._forward(weights, x[..., 0], x[..., 1], x[..., 2])
+        f_hat = self._forward(weights, *self._columns(x))
         return f_hat, self._u1.copy(), self._hidden.copy()
 
     def train(self, weights, x, f):
@@ -391,14 +399,13 @@ class ImpedanceNetwork:
         """
         weights, x = self._stack(weights, x)
         new = np.empty_like(weights)
-        f_hat = self._train(weights, x[..., 0], x[..., 1], x[..., 2],
-                            np.asarray(f, dtype=float), new)
+        f_hat = self._train(weights, *self._columns(x), self._scalar(f), new)
         return new, f_hat
 
     def impedance(self, weights):
         """(M_e, B_e, K_e) by probing at (x*, v*, a*); (N, 3) for stacked weights."""
         weights, _ = self._stack(weights, np.zeros(self._lead + (3,)))
-        return np.stack(np.broadcast_arrays(*self._impedance(weights)), axis=-1)
+        return together(self._impedance(weights), self._one)
 
     # Self-scaling (normalization: running): plain array expressions over
     # the last axis, one environment's vectors or N's rows (N, k), the
@@ -425,12 +432,12 @@ class ImpedanceNetwork:
     def _train_scaled(self, weights, x, f, scales):
         W, v = self.unpack(weights)
         f_hat, u, hidden = self._forward_scaled(weights, x, scales)
-        minus_e = column(-((f - f_hat) / scales[self._at[3]]), self._one)
+        minus_e = -((f - f_hat) / scales[self._at[3]])
         grad_v = minus_e * np.concatenate([self._ones, hidden], axis=-1)
         back = minus_e * v[..., 1:] * 0.5 * (1.0 - hidden**2)
         grad_W = back[..., :, None] * u[..., None, :]
         new = np.concatenate([(W - self._eta_matrix * grad_W).reshape(self._lead + (-1,)),
-                              v - self._eta_column * grad_v], axis=-1)
+                              v - self._eta * grad_v], axis=-1)
         return new, f_hat
 
     def _jacobian(self, weights, x, scales):
@@ -438,7 +445,7 @@ class ImpedanceNetwork:
         _, _, hidden = self._forward_scaled(weights, x, scales)
         back = v[..., 1:] * 0.5 * (1.0 - hidden**2)
         d_u = np.swapaxes(W[..., :, 1:], -1, -2) @ back[..., None]
-        return (column(scales[self._at[3]], self._one) * d_u[..., 0] / scales[..., :3])[..., ::-1]
+        return (scales[self._at[3]] * d_u[..., 0] / scales[..., :3])[..., ::-1]
 
     def _secants(self, weights, x, scales, probe=None):
         at = self._at
@@ -452,13 +459,10 @@ class ImpedanceNetwork:
         else:
             xs, vs, acc = probe[at[0]], probe[at[1]], probe[at[2]]
         zero = self._zero
-        f_x, f_xv, f_xva = (self._forward_scaled(weights, self._point(p), scales)[0]
+        one = self._one
+        f_x, f_xv, f_xva = (self._forward_scaled(weights, together(p, one), scales)[0]
                             for p in ((xs, zero, zero), (xs, vs, zero), (xs, vs, acc)))
-        return self._point((f_xva - f_xv, f_xv - f_x, f_x)), self._point((acc, vs, xs))
-
-    def _point(self, values):
-        """One environment's 3 values as an array, or N's (N, 3)."""
-        return np.array(values) if self._one else np.stack(values, axis=-1)
+        return together((f_xva - f_xv, f_xv - f_x, f_x), one), together((acc, vs, xs), one)
 
     @staticmethod
     def _average_secants(sums, rises, steps, decay):
@@ -470,7 +474,7 @@ class ImpedanceNetwork:
         """The running scales after the sample x = (xe, xe', xe''), f (N,
         less f_s): elementwise max(scales, |x|, |f|)."""
         return self._update_scales(self._shaped(scales, 4), self._shaped(x, 3),
-                                   np.asarray(f, dtype=float))
+                                   self._scalar(f))
 
     def forward_scaled(self, weights, x, scales):
         """f_hat = s_f (v . [1, f(W [1, x / s])]) and the inputs [1, x / s]
@@ -482,7 +486,7 @@ class ImpedanceNetwork:
         """One step on 1/2 ((f - f_hat) / s_f)^2; returns the new weights and
         f_hat before the step (see the module doc)."""
         return self._train_scaled(self._shaped(weights, self.size), self._shaped(x, 3),
-                                  np.asarray(f, dtype=float), self._shaped(scales, 4))
+                                  self._scalar(f), self._shaped(scales, 4))
 
     def jacobian(self, weights, x, scales):
         """(M_e, B_e, K_e) = d f_hat / d (xe'', xe', xe) at x."""
@@ -554,11 +558,11 @@ class AppendixEImpedanceNetwork(ImpedanceNetwork):
         d = (f - f_hat) * S * 0.5 * (1.0 - q * q)
         v1 = weights[self._v1]
         hidden = self._hidden
-        back = column(d, one) * v1 * 0.5 * (1.0 - hidden * hidden)
+        back = d * v1 * 0.5 * (1.0 - hidden * hidden)
         outer = back[..., :, None] * self._u1_row
         out[self._w_part] = weights[self._w_part] + (self._eta_matrix * outer).reshape(
             self._lead + (self._SPLIT,))
-        out[self._v_part] = weights[self._v_part] + column(self._eta * d, one) * self._h1
+        out[self._v_part] = weights[self._v_part] + self._eta * d * self._h1
         return f_hat
 
     def _impedance(self, weights):
@@ -626,9 +630,9 @@ class NnIdentifier(LeafSystem):
         self._readout = first.readout
         self._averaged = first.readout_time_constant_s > 0
         if self._averaged:
-            self._readout_decay = column(constants(
+            self._readout_decay = constants(
                 [np.exp(-CONTROL_PERIOD / c.readout_time_constant_s) for c in configs],
-                count == 1), count == 1)
+                count == 1)
             # The readout's weighted sums: [sum step * rise, sum step^2] (3 + 3).
             self._i_sums = int(self.DeclareDiscreteState(6 * count))
         # Plain ints index the groups (cheaper to pass to pydrake).
@@ -641,11 +645,11 @@ class NnIdentifier(LeafSystem):
         # (drake_contact.identification.stacked: one environment's are
         # scalars, as alone; N's (N,) arrays).
         self._one = one = count == 1
-        self._x = 0 if one else slice(0, None, 3)
+        self._x = every(0, 3, one)
         self._time = 0 if one else slice(0, None, 4)
-        self._x_switch = 1 if one else slice(1, None, 4)
-        self._each = 0 if one else slice(None)
-        self._columns = (0, 1, 2) if one else tuple(slice(k, None, 3) for k in range(3))
+        self._x_switch = every(1, 4, one)
+        self._each = every(0, 1, one)
+        self._impedance_at = [at(k, one) for k in range(3)]
         self._new = np.empty((count, net.size))
 
     def _started(self, contact):
@@ -674,19 +678,20 @@ class NnIdentifier(LeafSystem):
                 state.get_mutable_value(self._i_switch)[:] = (1.0, f_s)
         else:
             switch = switch.reshape(count, 2)
-            first, f_s = np.equal(switch[:, 0], 0.0), switch[:, 1]
+            first, f_s = np.equal(switch[:, 0], 0.0), switch[:, 1:]
             if started is not None:  # environments before their switch: zeros in, state kept
                 first &= started
-                x0, x1, x2, force = (np.where(started, v, 0.0) for v in (x0, x1, x2, force))
+                x0, x1, x2, force = (np.where(started[:, None], v, 0.0)
+                                     for v in (x0, x1, x2, force))
             if np.count_nonzero(first):
-                f_s = np.where(first, np.where(self._offset, force, 0.0), f_s)
+                f_s = np.where(first[:, None], np.where(self._offset[:, None], force, 0.0), f_s)
                 switched = (np.ones(count) if started is None
                             else np.where(started, 1.0, switch[:, 0]))
-                new_switch = np.stack([switched, f_s], axis=1)
+                new_switch = np.concatenate([switched[:, None], f_s], axis=1)
                 state.get_mutable_value(self._i_switch)[:] = new_switch.reshape(-1)
         f = force - f_s
         if self._running:
-            x = net._point((x0, x1, x2))
+            x = together((x0, x1, x2), self._one)
             self._update_running(context, state, x, f, f_s, started)
             return
         weights = context.get_discrete_state(self._i_weights).value()
@@ -701,12 +706,15 @@ class NnIdentifier(LeafSystem):
         M_e, B_e, K_e = net._impedance(new)
         if started is None:
             impedance = state.get_mutable_value(self._i_impedance)
-            for column, value in zip(self._columns, (M_e, B_e, K_e)):
-                impedance[column] = value
+            if not self._one:
+                impedance = impedance.reshape(count, 3)
+            for index, value in zip(self._impedance_at, (M_e, B_e, K_e)):
+                impedance[index] = value
             state.get_mutable_value(self._i_estimate)[self._each] = f_hat + f_s
             return
         self._store(context, state, started, ((self._i_weights, new),
-                                              (self._i_impedance, np.stack([M_e, B_e, K_e], 1)),
+                                              (self._i_impedance, together((M_e, B_e, K_e),
+                                                                           False)),
                                               (self._i_estimate, f_hat + f_s)))
 
     def _store(self, context, state, started, groups):

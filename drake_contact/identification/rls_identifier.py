@@ -60,7 +60,7 @@ from pydrake.systems.framework import LeafSystem
 from drake_contact.blocks import environment_configs
 from drake_contact.plant.arm import CONTROL_PERIOD, TIME_TOLERANCE_S, DeclareSampledUpdate
 from drake_contact.errors import ScenarioError
-from drake_contact.identification.stacked import column, constants, products
+from drake_contact.identification.stacked import at, constants, every, products
 
 
 @dc.dataclass
@@ -241,8 +241,7 @@ class RlsIdentifier(LeafSystem):
         self._one = one = count == 1
         self._matvec, self._rowdot = products(one)
         self._lam = constants([c.forgetting_factor for c in configs], one)
-        self._lam_column = column(self._lam, one)
-        self._lam_matrix = self._lam if one else self._lam[:, None, None]
+        self._lam_matrix = self._lam if one else self._lam[:, :, None]
         self._drift = constants([c.stiffness_drift for c in configs], one)
         self._drifting = configs[0].stiffness_drift > 0
         self._detect = configs[0].change_threshold_n > 0
@@ -258,13 +257,15 @@ class RlsIdentifier(LeafSystem):
             self._threshold = constants([c.change_threshold_n for c in configs], one)
         # Where each environment's values are in the inputs: x of a pose
         # (3 per environment), the switch time and x of contact_info (4).
-        self._x = 0 if one else slice(0, None, 3)
+        # (A float for one environment, a column (N, 1) for N: see
+        # drake_contact.identification.stacked.)
+        self._x = every(0, 3, one)
         self._time = 0 if one else slice(0, None, 4)
-        self._x_switch = 1 if one else slice(1, None, 4)
-        self._f = 0 if one else slice(None)
-        # An environment's k-th value of a buffer's last axis (a scalar for one).
-        self._at = [k if one else (slice(None), k) for k in range(3)]
-        self._K_K = (2, 2) if one else (slice(None), 2, 2)
+        self._x_switch = every(1, 4, one)
+        self._f = every(0, 1, one)
+        # An environment's k-th value of a buffer's last axis, and P's K_e, K_e.
+        self._at = [at(k, one) for k in range(3)]
+        self._K_K = (2, 2) if one else (slice(None), slice(2, 3), 2)
         # Work buffers of one sample's step (see _update).
         lead = () if one else (count,)
         self._values = np.empty(lead + (n + n * n,))   # the state [theta, P.ravel()] read
@@ -300,7 +301,7 @@ class RlsIdentifier(LeafSystem):
         # RlsEstimator.step's arithmetic, operation for operation, in the
         # buffers: theta and P (a copy of the state), phi, the new state.
         self._values.reshape(-1)[:] = context.get_discrete_state(self._i_state).value()
-        phi, P_phi, gain, B, one = self._phi, self._P_phi, self._gain, self._B, self._one
+        phi, P_phi, gain, B = self._phi, self._P_phi, self._gain, self._B
         at = self._at
         phi[at[0]] = self._acceleration.Eval(context)[self._x]
         phi[at[1]] = self._velocity.Eval(context)[self._x]
@@ -308,12 +309,12 @@ class RlsIdentifier(LeafSystem):
         f = self._force.Eval(context)[self._f]
         if started is not None:  # environments before their switch: zeros in, state kept
             phi[~started, :3] = 0.0
-            f = np.where(started, f, 0.0)
+            f = np.where(started[:, None], f, 0.0)
         if self._detect:
             self._detect_change(context, state, f, started)
         self._matvec(self._P, phi, P_phi)
-        np.divide(P_phi, column(self._lam + self._rowdot(phi, P_phi), one), out=gain)
-        np.multiply(gain, column(f - self._rowdot(phi, self._theta), one), out=self._theta_step)
+        np.divide(P_phi, self._lam + self._rowdot(phi, P_phi), out=gain)
+        np.multiply(gain, f - self._rowdot(phi, self._theta), out=self._theta_step)
         np.add(self._theta, self._theta_step, out=self._new_theta)
         np.multiply(self._gain_column, self._P_phi_row, out=B)
         np.subtract(self._P, B, out=B)
@@ -349,12 +350,12 @@ class RlsIdentifier(LeafSystem):
             state.get_mutable_value(self._i_change)[:] = [error, samples, last]
             return
         if started is not None:
-            reset &= started
+            reset &= started[:, None]
         if np.count_nonzero(reset):
-            self._P[reset] = self._P0[reset]
+            self._P[reset[:, 0]] = self._P0[reset[:, 0]]
             error = np.where(reset, 0.0, error)
             last = np.where(reset, samples, last)
-        new = np.stack([error, samples, last], axis=1)
+        new = np.concatenate([error, samples, last], axis=1)
         if started is not None:
             new = np.where(started[:, None], new, change)
         state.get_mutable_value(self._i_change)[:] = new.reshape(-1)
