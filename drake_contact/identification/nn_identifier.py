@@ -654,18 +654,16 @@ class NnIdentifier(LeafSystem):
 
     def _started(self, contact):
         """Which environments are past their switch (N,), or None when all
-        are (always for one: it is not stepped before)."""
-        if self._one:
-            return None
+        are (N > 1; one environment is not stepped before its switch)."""
         started = np.logical_not(np.less(contact[self._time], 0.0))
         return None if np.count_nonzero(started) == self._count else started
 
     def _update(self, context, state):
         contact = self._contact.Eval(context)
-        count, net = self._count, self._net
-        if contact[0] < 0 and (count == 1 or max(contact[4::4].tolist()) < 0):
+        if contact[0] < 0 and (self._one or max(contact[4::4].tolist()) < 0):
             return
-        started = self._started(contact)
+        count, net = self._count, self._net
+        started = None if self._one else self._started(contact)
         x0 = self._pose.Eval(context)[self._x] - contact[self._x_switch]
         x1 = self._velocity.Eval(context)[self._x]
         x2 = self._acceleration.Eval(context)[self._x]

@@ -286,18 +286,16 @@ class RlsIdentifier(LeafSystem):
 
     def _started(self, contact):
         """Which environments are past their switch (N,), or None when all
-        are (always for one: it is not stepped before)."""
-        if self._one:
-            return None
+        are (N > 1; one environment is not stepped before its switch)."""
         started = np.logical_not(np.less(contact[self._time], 0.0))
         return None if np.count_nonzero(started) == self._count else started
 
     def _update(self, context, state):
         contact = self._contact.Eval(context)
-        count = self._count
-        if contact[0] < 0 and (count == 1 or max(contact[4::4].tolist()) < 0):
+        if contact[0] < 0 and (self._one or max(contact[4::4].tolist()) < 0):
             return
-        started = self._started(contact)
+        count = self._count
+        started = None if self._one else self._started(contact)
         # RlsEstimator.step's arithmetic, operation for operation, in the
         # buffers: theta and P (a copy of the state), phi, the new state.
         self._values.reshape(-1)[:] = context.get_discrete_state(self._i_state).value()
