@@ -136,11 +136,14 @@ class Declaration:
     contender: bool = True
     # An identifier: its options also carry the run's ``seed``.
     seeded: bool = False
-    # A controller: its factory also takes a list of N options mappings
-    # (one per environment of an ensemble, sharing a structure) and returns
-    # one system serving all N, every port N times its size, environment
-    # i's values at [k i, k (i + 1)) (drake_contact.diagram.MakeEnsembleDiagram).
-    # Without it an ensemble runs one system per environment.
+    # A controller or an identifier: its factory also takes a list of N
+    # options mappings (one per environment of an ensemble, sharing a
+    # structure; an identifier's each with its environment's ``seed`` if
+    # seeded) and returns one system serving all N, every port N times its
+    # size, environment i's values at [k i, k (i + 1))
+    # (drake_contact.diagram.MakeEnsembleDiagram, and for identifiers
+    # drake_contact.identification.identifiers.AddIdentifiers). Without it
+    # an ensemble runs one system per environment.
     ensemble: bool = False
 
 
@@ -288,14 +291,16 @@ def MakeController(name: str, options, *, prefix="controller", count=1) -> Syste
     return system
 
 
-def MakeIdentifier(kind: str, options: dict, *, prefix="identifiers[0]") -> System:
+def MakeIdentifier(kind: str, options, *, prefix="identifiers[0]", count=1) -> System:
     """Builds the installed identifier ``kind`` from ``options``; its inputs
     must be measured signals or ``contact_info`` (:func:`identifier_inputs`),
     and it must output ``impedance`` (3). Raises ScenarioError naming it
-    otherwise."""
+    otherwise. With a list of ``count`` options mappings (a plug-in that
+    declares ``ensemble``), one system serving ``count`` environments, every
+    port ``count`` times its size."""
     system, where = _build(installed_identifiers(), "identifier", kind, options,
                            f"{prefix}.kind")
-    _check_ports(system, where, identifier_inputs(), IDENTIFIER_REQUIRED_OUTPUTS)
+    _check_ports(system, where, identifier_inputs(), IDENTIFIER_REQUIRED_OUTPUTS, count)
     return system
 
 

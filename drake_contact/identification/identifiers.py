@@ -48,8 +48,10 @@ import dataclasses as dc
 
 import numpy as np
 from scipy import signal
-from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.framework import DiagramBuilder, PortDataType
+from pydrake.systems.primitives import Demultiplexer, Multiplexer
 
+from drake_contact.arm_axis import LinearSystemBank
 from drake_contact.blocks import AddSubdiagram
 from drake_contact.errors import ScenarioError
 from drake_contact.measured import MEASUREMENTS
@@ -173,34 +175,36 @@ def nominal_force_chain(sensor, dsp, period=CONTROL_PERIOD, discretization="bili
             np.convolve(a, a_dsp))
 
 
-def _add_matched_signals(builder, scenario, inputs, chain_model="bilinear"):
+def _add_matched_signals(builder, scenarios, inputs, chain_model="bilinear"):
     """The ``matched`` versions of force, tip pose, velocity and acceleration:
-    every one through the same overall filter (force chain x 35 Hz).
+    every one through the same overall filter (force chain x 35 Hz), each
+    environment's from its own scenario (``scenarios``: one per environment).
     ``inputs`` maps a measured signal's name to the list of inner input
     ports its exported input feeds; returns {signal name: filtered port}."""
-    b_chain, a_chain = nominal_force_chain(scenario.force_sensor, scenario.dsp,
-                                           discretization=chain_model)
-    b_35, a_35 = butterworth_digital(scenario.estimator.cutoff_hz, 1.0 / CONTROL_PERIOD)
-    filters = {
-        "force": ("force", b_35, a_35, 1),
-        "tip_pose": ("pose", np.polymul(b_chain, b_35), np.polymul(a_chain, a_35), 3),
-        "tip_velocity": ("velocity", b_chain, a_chain, 3),
-        "tip_acceleration": ("acceleration", b_chain, a_chain, 3),
-    }
+    filters = {"force": ("force", [], 1), "tip_pose": ("pose", [], 3),
+               "tip_velocity": ("velocity", [], 3), "tip_acceleration": ("acceleration", [], 3)}
+    for scenario in scenarios:
+        b_chain, a_chain = nominal_force_chain(scenario.force_sensor, scenario.dsp,
+                                               discretization=chain_model)
+        b_35, a_35 = butterworth_digital(scenario.estimator.cutoff_hz, 1.0 / CONTROL_PERIOD)
+        filters["force"][1].append((b_35, a_35))
+        filters["tip_pose"][1].append((np.polymul(b_chain, b_35), np.polymul(a_chain, a_35)))
+        filters["tip_velocity"][1].append((b_chain, a_chain))
+        filters["tip_acceleration"][1].append((b_chain, a_chain))
     return _add_filters(builder, filters, inputs, chain_model)
 
 
-def _add_raw_matched_signals(builder, scenario, inputs, chain_model="bilinear"):
+def _add_raw_matched_signals(builder, scenarios, inputs, chain_model="bilinear"):
     """The ``raw_matched`` signals: the unfiltered force as read, and the tip
     pose and its unfiltered differences through the sensor's nominal chain
     up to the DSP. Returns {identifier input name: port} like
     :func:`_add_matched_signals`."""
-    b_chain, a_chain = nominal_force_chain(scenario.force_sensor, None,
-                                           discretization=chain_model)
+    chains = [nominal_force_chain(s.force_sensor, None, discretization=chain_model)
+              for s in scenarios]
     filters = {
-        "tip_pose": ("raw_pose", b_chain, a_chain, 3),
-        "tip_velocity_raw": ("raw_velocity", b_chain, a_chain, 3),
-        "tip_acceleration_raw": ("raw_acceleration", b_chain, a_chain, 3),
+        "tip_pose": ("raw_pose", chains, 3),
+        "tip_velocity_raw": ("raw_velocity", chains, 3),
+        "tip_acceleration_raw": ("raw_acceleration", chains, 3),
     }
     out = _add_filters(builder, filters, inputs, chain_model)
     return {"tip_pose": out["tip_pose"], "tip_velocity": out["tip_velocity_raw"],
@@ -208,15 +212,18 @@ def _add_raw_matched_signals(builder, scenario, inputs, chain_model="bilinear"):
 
 
 def _add_filters(builder, filters, inputs, chain_model="bilinear"):
-    """Adds one digital filter system per entry {source: (name, b, a,
-    channels)}, fed by the measured signal ``source``; returns {source: its
-    output port}. The systems are named matched_<name> (and _zoh with that
-    chain model)."""
+    """Adds one digital filter system per entry {source: (name, [(b, a) per
+    environment], channels)}, fed by the measured signal ``source``; returns
+    {source: its output port}. The systems are named matched_<name> (and
+    _zoh with that chain model); for several environments each is a
+    LinearSystemBank of their filters (env-major ports)."""
     out = {}
     suffix = "" if chain_model == "bilinear" else f"_{chain_model}"
-    for source, (name, b, a, channels) in filters.items():
-        system = builder.AddNamedSystem(f"matched_{name}{suffix}",
-                                        digital_filter_system(b, a, CONTROL_PERIOD, channels))
+    for source, (name, coefficients, channels) in filters.items():
+        systems = [digital_filter_system(b, a, CONTROL_PERIOD, channels)
+                   for b, a in coefficients]
+        system = builder.AddNamedSystem(f"matched_{name}{suffix}", systems[0] if len(systems) == 1
+                                        else LinearSystemBank(systems))
         inputs[source].append(system.get_input_port())
         out[source] = system.get_output_port()
     # The position filter starts at rest at 0 and settles within ~50 ms,
@@ -238,20 +245,90 @@ _SOURCES["matched"] = _SOURCES["filtered"]
 _SOURCES["raw_matched"] = _SOURCES["raw"]
 
 
-@declare(sections=("rls",))
-def rls(options: dict):
+@declare(sections=("rls",), ensemble=True)
+def rls(options):
     """The built-in RLS identifier (registered as ``rls``); options: the
-    fields of :class:`RlsConfig`."""
-    return RlsIdentifier(config_from_options(RlsConfig, options, "identifiers.rls"))
+    fields of :class:`RlsConfig`, or a list of N such mappings (one system
+    serving N environments)."""
+    configs = [config_from_options(RlsConfig, o, "identifiers.rls")
+               for o in (options if isinstance(options, list) else [options])]
+    return RlsIdentifier(configs if isinstance(options, list) else configs[0])
 
 
-@declare(sections=("nn",), seeded=True)
-def nn(options: dict):
+@declare(sections=("nn",), seeded=True, ensemble=True)
+def nn(options):
     """The built-in neural identifier (registered as ``nn``); options: the
-    fields of :class:`NnIdentifierConfig` and ``seed`` (its initial weights)."""
-    options = dict(options)
-    seed = int(options.pop("seed", 0))
-    return NnIdentifier(config_from_options(NnIdentifierConfig, options, "identifiers.nn"), seed)
+    fields of :class:`NnIdentifierConfig` and ``seed`` (its initial weights),
+    or a list of N such mappings (one system serving N environments, each's
+    weights from its own seed)."""
+    configs, seeds = [], []
+    for o in (options if isinstance(options, list) else [options]):
+        o = dict(o)
+        seeds.append(int(o.pop("seed", 0)))
+        configs.append(config_from_options(NnIdentifierConfig, o, "identifiers.nn"))
+    if isinstance(options, list):
+        return NnIdentifier(configs, seeds)
+    return NnIdentifier(configs[0], seeds[0])
+
+
+def _check_shared(scenarios):
+    """Raises ScenarioError (one line) unless the environments' scenarios
+    have the same identifiers: names, kinds, signals and chain models."""
+    def layout(scenario):
+        return [(c.name, c.kind, c.signals, c.chain_model) for c in scenario.identifiers]
+    first = layout(scenarios[0])
+    for i, scenario in enumerate(scenarios[1:], start=1):
+        if layout(scenario) != first:
+            raise ScenarioError(
+                f"identifiers: environment {i} has {layout(scenario)} (name, kind, signals, "
+                f"chain_model) and environment 0 {first}: the environments must share a "
+                "structure")
+
+
+def _copies(systems, name):
+    """N one-environment systems of one plug-in as one sub-diagram ``name``
+    with env-major ports: each input split by a Demultiplexer, each vector
+    output joined by a Multiplexer (for a plug-in that does not declare
+    ``ensemble``)."""
+    builder = DiagramBuilder()
+    count = len(systems)
+    systems = [builder.AddNamedSystem(f"{name}_{i}", s) for i, s in enumerate(systems)]
+    first = systems[0]
+    for p in range(first.num_input_ports()):
+        port = first.get_input_port(p)
+        split = builder.AddNamedSystem(f"{port.get_name()}_split",
+                                       Demultiplexer([port.size()] * count))
+        for i, system in enumerate(systems):
+            builder.Connect(split.get_output_port(i), system.get_input_port(p))
+        builder.ExportInput(split.get_input_port(), port.get_name())
+    for p in range(first.num_output_ports()):
+        port = first.get_output_port(p)
+        if port.get_data_type() != PortDataType.kVectorValued:
+            continue
+        join = builder.AddNamedSystem(f"{port.get_name()}_join",
+                                      Multiplexer([port.size()] * count))
+        for i, system in enumerate(systems):
+            builder.Connect(system.get_output_port(p), join.get_input_port(i))
+        builder.ExportOutput(join.get_output_port(), port.get_name())
+    diagram = builder.Build()
+    diagram.set_name(name)
+    return diagram
+
+
+def _make_identifier(scenarios, index):
+    """The identifier system of entry ``index`` for the environments'
+    ``scenarios``: one system, or with several environments one serving all
+    when its plug-in declares ``ensemble``, else :func:`_copies`."""
+    configs = [s.identifiers[index] for s in scenarios]
+    kind, prefix = configs[0].kind, f"identifiers[{index}]"
+    options = [c.factory_options(s.simulation.seed * 1000 + index)
+               for c, s in zip(configs, scenarios)]
+    if len(scenarios) == 1:
+        return MakeIdentifier(kind, options[0], prefix=prefix)
+    if identifier_declaration(kind, f"{prefix}.kind").ensemble:
+        return MakeIdentifier(kind, options, prefix=prefix, count=len(scenarios))
+    return _copies([MakeIdentifier(kind, o, prefix=prefix) for o in options],
+                   f"identifier_{configs[0].name}")
 
 
 def AddIdentifiers(builder: DiagramBuilder, scenario, *, name="identifiers"):
@@ -262,21 +339,32 @@ def AddIdentifiers(builder: DiagramBuilder, scenario, *, name="identifiers"):
     its role (``force``, ``force_raw``, ``tip_pose``, ...) and
     ``contact_info`` (4, the hybrid controller's switch record). Outputs, per
     identifier ``<id>``: ``impedance_<id>`` (3: [M_e, B_e, K_e], kg, N s/m,
-    N/m) and, for the neural network, ``force_estimate_<id>`` (N)."""
-    seed = scenario.simulation.seed
+    N/m) and, for the neural network, ``force_estimate_<id>`` (N).
+
+    ``scenario`` may be a list of N scenarios, one per environment of an
+    ensemble, with the same identifiers (names, kinds, signals, chain
+    models; their numbers and seeds may differ): then every port is N times
+    its size, env-major (environment i's k values at [k i, k i + k)), each
+    identifier one system serving all N when its plug-in declares
+    ``ensemble`` (else N copies behind a Demultiplexer and a Multiplexer per
+    port), each matched filter a LinearSystemBank of the N environments'."""
+    scenarios = list(scenario) if isinstance(scenario, (list, tuple)) else [scenario]
+    if not scenarios:
+        raise ScenarioError("identifiers: no scenarios (one per environment, at least one)")
+    _check_shared(scenarios)
+    first = scenarios[0]
 
     def build(builder):
         inputs = {m.role: [] for m in MEASUREMENTS.values()} | {"contact_info": []}
         outputs = {}
         filtered = {}   # (signals, chain) -> {input name: filtered port}, built once each
         adders = {"matched": _add_matched_signals, "raw_matched": _add_raw_matched_signals}
-        for index, config in enumerate(scenario.identifiers):
-            system = MakeIdentifier(config.kind, config.factory_options(seed * 1000 + index),
-                                    prefix=f"identifiers[{index}]")
-            system = builder.AddNamedSystem(f"identifier_{config.name}", system)
+        for index, config in enumerate(first.identifiers):
+            system = builder.AddNamedSystem(f"identifier_{config.name}",
+                                            _make_identifier(scenarios, index))
             key = (config.signals, config.chain_model)
             if config.signals in adders and key not in filtered:
-                filtered[key] = adders[config.signals](builder, scenario, inputs,
+                filtered[key] = adders[config.signals](builder, scenarios, inputs,
                                                        config.chain_model)
             own = filtered.get(key, {})
             sources = _SOURCES[config.signals]

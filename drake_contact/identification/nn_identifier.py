@@ -87,12 +87,15 @@ finite: each is below what any wall's 20 N transient reaches (xe is 0.1 mm at
 """
 
 import dataclasses as dc
+from collections.abc import Sequence
 
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
+from drake_contact.blocks import environment_configs
 from drake_contact.plant.arm import CONTROL_PERIOD, DeclareSampledUpdate
 from drake_contact.errors import ScenarioError
+from drake_contact.identification.stacked import at, constants, every, products, together
 
 HIDDEN = 4
 OUTPUT_LAYERS = ("linear", "appendix_e")
@@ -186,47 +189,117 @@ class NnIdentifierConfig:
                                 "are built for the linear output layer")
 
 
+def _switches(config):
+    """The options a config switches on (its structure: which arithmetic
+    runs and the state's shape), by field."""
+    return {"output_layer": config.output_layer, "normalization": config.normalization,
+            "readout": config.readout,
+            "readout_time_constant_s": config.readout_time_constant_s > 0}
+
+
+def check_structure(configs, prefix="identifiers.nn"):
+    """Raises ScenarioError naming the field if the environments' configs
+    differ in an option they switch (their numbers may differ, and so may
+    force_offset: an anchor f_s of 0 is the arithmetic without it)."""
+    first = _switches(configs[0])
+    for i, config in enumerate(configs[1:], start=1):
+        for field, value in _switches(config).items():
+            if value != first[field]:
+                raise ScenarioError(
+                    f"{prefix}.{field}: environment {i} has {value} and environment 0 "
+                    f"{first[field]}: the environments must share a structure (which options "
+                    "are on), not only their numbers")
+
+
+def _configs(config):
+    return environment_configs(config, NnIdentifierConfig, "identifiers.nn")
+
+
 class ImpedanceNetwork:
-    """The network's arithmetic on a flat weight vector (no Drake).
+    """The network's arithmetic on flat weight vectors (no Drake), for one
+    environment or N (one config each), weights (size,) or stacked (N, size).
 
     Layout: W (HIDDEN x 4, inputs [1, u]) then v (1 + HIDDEN), row-major.
 
     One sample's arithmetic runs in work buffers the network owns (the
     system trains and probes it every 1 ms on 4-vectors, where numpy's
     per-call cost outweighs the arithmetic): the same IEEE operations, in
-    the same order, as the array expressions in the docstrings, with the
-    scalars in Python floats and every matrix product in numpy's BLAS.
+    the same order, as the array expressions in the docstrings, elementwise
+    over the arm axis, written once for one environment (its scalars Python
+    floats, its buffers without the environment axis) and N
+    (:mod:`drake_contact.identification.stacked`), so that each
+    environment's values are bit for bit its own alone.
+
+    The public methods take one environment's arrays (1-D) or the stack
+    (N, ...) and answer likewise.
     """
 
     size = HIDDEN * 4 + HIDDEN + 1
     _SPLIT = HIDDEN * 4
 
-    def __init__(self, config: NnIdentifierConfig):
-        self.c = config
-        self.scale = np.asarray(config.input_scale, dtype=float)
-        self._scale = self.scale.tolist()
-        self._S = float(config.output_scale_n)
-        self._eta = float(config.learning_rate)
-        self._u1 = np.ones(4)                          # [1, scale * x]
-        self._h1 = np.ones(HIDDEN + 1)                 # [1, f(h)]
-        self._hidden = self._h1[1:]
-        self._pre = np.empty(HIDDEN)
-        self._a = np.empty(HIDDEN)
-        self._a_column = self._a[:, None]
-        self._step = np.empty(self.size)               # eta [grad_W.ravel(), grad_v]
-        self._step_W = self._step[:self._SPLIT].reshape(HIDDEN, 4)
-        self._step_v = self._step[self._SPLIT:]
-        # The probes' inputs [1, scale * x*] and their hidden layers.
-        xs, vs, acc = config.probe
-        self._probe_inputs = [np.concatenate([[1.0], self.scale * np.array(x)])
-                              for x in ([xs, 0.0, 0.0], [xs, vs, 0.0], [xs, vs, acc])]
-        self._probe_pre = np.empty((3, HIDDEN))
-        self._probe_rows = list(self._probe_pre)
-        self._probe_hidden = np.empty((3, HIDDEN))
-        self._probe_hidden_rows = list(self._probe_hidden)
+    def __init__(self, config: NnIdentifierConfig | Sequence[NnIdentifierConfig]):
+        configs = _configs(config)
+        check_structure(configs)
+        self.configs = configs
+        self.c = configs[0]
+        self.count = count = len(configs)
+        self._one = one = count == 1
+        self._matvec, self._rowdot = products(one)
+        lead = () if one else (count,)
+        self._lead = lead
+        # Per environment, as the operands of one environment's arithmetic.
+        scales = np.array([c.input_scale for c in configs], dtype=float)   # (N, 3)
+        self.scale = scales[0] if one else scales
+        self._s = [constants(scales[:, k], one) for k in range(3)]
+        self._S = constants([c.output_scale_n for c in configs], one)
+        self._eta = constants([c.learning_rate for c in configs], one)
+        self._eta_matrix = self._eta if one else self._eta[:, :, None]
+        self._probe = np.array([c.probe for c in configs], dtype=float)     # (N, 3): x*, v*, a*
+        self._xs, self._vs, self._acc = (constants(self._probe[:, k], one) for k in range(3))
+        self._probe_point = self._probe[0] if one else self._probe
+        self._floor = np.array([c.scale_floor for c in configs], dtype=float)
+        # Where v_0, v_1: and W are in the weights.
+        split = self._SPLIT
+        self._v0 = at(split, one)
+        self._v1 = slice(split + 1, None) if one else (slice(None), slice(split + 1, None))
+        self._w_part = slice(None, split) if one else (slice(None), slice(None, split))
+        self._v_part = slice(split, None) if one else (slice(None), slice(split, None))
+        self._u1 = np.ones(lead + (4,))                # [1, scale * x]
+        self._u_at = [at(k, one) for k in range(4)]
+        self._u1_row = self._u1[..., None, :]
+        self._h1 = np.ones(lead + (HIDDEN + 1,))       # [1, f(h)]
+        self._hidden = self._h1[..., 1:]
+        self._pre = np.empty(lead + (HIDDEN,))
+        self._a = np.empty(lead + (HIDDEN,))
+        self._a_column = self._a[..., :, None]
+        self._slope = np.empty(lead + (HIDDEN,))
+        self._step = np.empty(lead + (self.size,))     # eta [grad_W.ravel(), grad_v]
+        self._step_W = self._step[..., :split].reshape(lead + (HIDDEN, 4))
+        self._step_v = self._step[..., split:]
+        # The probes' inputs [1, scale * x*] (3 probes x 4) and their hidden layers.
+        xs, vs, acc = self._probe.T
+        zeros = np.zeros(count)
+        points = np.stack([np.stack([xs, zeros, zeros], 1), np.stack([xs, vs, zeros], 1),
+                           np.stack([xs, vs, acc], 1)], 1)                  # (N, 3, 3)
+        inputs = np.concatenate([np.ones((count, 3, 1)), scales[:, None, :] * points], axis=2)
+        self._probe_inputs = inputs[0] if one else inputs
+        self._probe_input_rows = [self._probe_inputs[..., p, :] for p in range(3)]
+        self._probe_pre = np.empty(lead + (3, HIDDEN))
+        self._probe_rows = [self._probe_pre[..., p, :] for p in range(3)]
+        self._probe_hidden = np.empty(lead + (3, HIDDEN))
+        self._probe_hidden_rows = [self._probe_hidden[..., p, :] for p in range(3)]
+        # The running normalization's: per-environment scalars of a row
+        # (v_0, s_f, ...) by self._at[k], a column of ones, zeros, x's floor.
+        self._at = [at(k, one) for k in range(4)]
+        self._ones = np.ones(lead + (1,))
+        self._zero = 0.0 if one else np.zeros((count, 1))
+        self._floor_x = constants(self._floor[:, 0], one)
 
     def unpack(self, weights):
-        return weights[:HIDDEN * 4].reshape(HIDDEN, 4), weights[HIDDEN * 4:]
+        """W and v of one environment's weights (or the stack's (N, ...))."""
+        split = self._SPLIT
+        return (weights[..., :split].reshape(*np.shape(weights)[:-1], HIDDEN, 4),
+                weights[..., split:])
 
     @staticmethod
     def _f(pre, out):
@@ -237,52 +310,83 @@ class ImpedanceNetwork:
         np.divide(2.0, pre, out=pre)
         np.subtract(pre, 1.0, out=out)
 
+    def _W(self, weights):
+        return weights[self._w_part].reshape(self._lead + (HIDDEN, 4))
+
     def _pre_activations(self, weights, x0, x1, x2):
-        """[1, scale x] into the buffer u1 and W [1, scale x] into pre."""
-        u1 = self._u1
-        s0, s1, s2 = self._scale
-        u1[1] = s0 * x0
-        u1[2] = s1 * x1
-        u1[3] = s2 * x2
-        W = weights[:self._SPLIT].reshape(HIDDEN, 4)
-        np.dot(W, u1, out=self._pre)
+        """[1, scale x] into the buffer u1 and W [1, scale x] into pre; x0,
+        x1, x2 each environment's (a float for one, else (N,))."""
+        u1, at = self._u1, self._u_at
+        s0, s1, s2 = self._s
+        u1[at[1]] = s0 * x0
+        u1[at[2]] = s1 * x1
+        u1[at[3]] = s2 * x2
+        self._matvec(self._W(weights), u1, self._pre)
 
     def _forward(self, weights, x0, x1, x2):
         """f_hat for raw x = (x0, x1, x2); [1, scale x] and [1, f(h)] into
         the buffers."""
         self._pre_activations(weights, x0, x1, x2)
         self._f(self._pre, self._hidden)
-        return self._S * (weights[self._SPLIT] + np.dot(weights[self._SPLIT + 1:], self._hidden))
+        return self._S * (weights[self._v0] + self._rowdot(weights[self._v1], self._hidden))
 
     def _train(self, weights, x0, x1, x2, f, out):
         """One gradient step (see :meth:`train`), the new weights into
         ``out``; returns f_hat before the step."""
         f_hat = self._forward(weights, x0, x1, x2)
         c = -(f - f_hat) * self._S                     # -e S
-        a = self._a                                    # -e S v_1: f'(h)
-        for j, (v_j, h_j) in enumerate(zip(weights[self._SPLIT + 1:].tolist(),
-                                            self._hidden.tolist())):
-            a[j] = c * v_j * 0.5 * (1.0 - h_j * h_j)
-        np.multiply(self._a_column, self._u1, out=self._step_W)
+        a, slope, hidden = self._a, self._slope, self._hidden
+        np.multiply(c, weights[self._v1], out=a)       # -e S v_1: f'(h)
+        np.multiply(a, 0.5, out=a)
+        np.multiply(hidden, hidden, out=slope)
+        np.subtract(1.0, slope, out=slope)
+        np.multiply(a, slope, out=a)
+        np.multiply(self._a_column, self._u1_row, out=self._step_W)
         np.multiply(self._h1, c, out=self._step_v)
         np.multiply(self._step, self._eta, out=self._step)
         np.subtract(weights, self._step, out=out)
         return f_hat
 
+    def _probe_layers(self, weights):
+        """W [1, scale x*] of the three probes into the buffer probe_pre."""
+        W = self._W(weights)
+        for u, row in zip(self._probe_input_rows, self._probe_rows):
+            self._matvec(W, u, row)
+
     def _impedance(self, weights):
-        """(M_e, B_e, K_e) as floats (see :meth:`impedance`)."""
-        W = weights[:self._SPLIT].reshape(HIDDEN, 4)
-        for u, row in zip(self._probe_inputs, self._probe_rows):
-            np.dot(W, u, out=row)
+        """(M_e, B_e, K_e), each a float for one environment, else (N,)
+        (see :meth:`impedance`)."""
+        self._probe_layers(weights)
         self._f(self._probe_pre, self._probe_hidden)
-        v0, v1, S = weights[self._SPLIT], weights[self._SPLIT + 1:], self._S
-        f_x, f_xv, f_xva = (S * (v0 + np.dot(v1, h)) for h in self._probe_hidden_rows)
-        xs, vs, acc = self.c.probe
-        return (f_xva - f_xv) / acc, (f_xv - f_x) / vs, f_x / xs
+        v0, v1, S = weights[self._v0], weights[self._v1], self._S
+        f_x, f_xv, f_xva = (S * (v0 + self._rowdot(v1, h)) for h in self._probe_hidden_rows)
+        return (f_xva - f_xv) / self._acc, (f_xv - f_x) / self._vs, f_x / self._xs
+
+    @staticmethod
+    def _single(weights):
+        return np.ndim(weights) == 1
+
+    def _stack(self, weights, x):
+        """Checks one environment's weights and x (1-D) or the stack's."""
+        weights, x = np.asarray(weights, dtype=float), np.asarray(x, dtype=float)
+        if (weights.ndim == 1) != self._one:
+            raise ValueError(f"weights of shape {weights.shape} for {self.count} environments")
+        return weights, x.reshape(self._lead + (3,))
+
+    def _scalar(self, f):
+        """Each environment's scalar: a float for one, a column (N, 1) for N."""
+        f = np.asarray(f, dtype=float)
+        return f if self._one else f.reshape(self.count, 1)
+
+    def _columns(self, x):
+        """x's three values per environment, each a float or a column (N, 1)."""
+        return tuple(x[self._at[k]] for k in range(3))
 
     def forward(self, weights, x):
-        """f_hat (N) and the hidden activations for raw x = (xe, xe', xe'')."""
-        f_hat = self._forward(weights, *np.asarray(x, dtype=float).tolist())
+        """f_hat (N) and the inputs [1, scale x] and hidden activations for
+        raw x = (xe, xe', xe''); stacked (N, ...) for stacked arguments."""
+        weights, x = self._stack(weights, x)
+        f_hat = self._forward(weights, *self._columns(x))
         return f_hat, self._u1.copy(), self._hidden.copy()
 
     def train(self, weights, x, f):
@@ -293,46 +397,101 @@ class ImpedanceNetwork:
             v -= eta (-e S [1, f(h)])
             W -= eta outer(-e S v_1: (1 - f(h)^2) / 2, [1, u])
         """
-        new = np.empty(self.size)
-        f_hat = self._train(weights, *np.asarray(x, dtype=float).tolist(), f, new)
+        weights, x = self._stack(weights, x)
+        new = np.empty_like(weights)
+        f_hat = self._train(weights, *self._columns(x), self._scalar(f), new)
         return new, f_hat
 
     def impedance(self, weights):
-        """(M_e, B_e, K_e) by probing at (x*, v*, a*)."""
-        return np.array(self._impedance(weights))
+        """(M_e, B_e, K_e) by probing at (x*, v*, a*); (N, 3) for stacked weights."""
+        weights, _ = self._stack(weights, np.zeros(self._lead + (3,)))
+        return together(self._impedance(weights), self._one)
 
-    # Self-scaling (normalization: running): plain array expressions; the
+    # Self-scaling (normalization: running): plain array expressions over
+    # the last axis, one environment's vectors or N's rows (N, k), the
+    # per-environment scalars indexed by self._at (a float for one); the
     # scales s = (s_x, s_v, s_a, s_f) are arguments (the system's state).
+
+    def _shaped(self, array, size):
+        """One environment's (size,) array, or N's (N, size)."""
+        return np.asarray(array, dtype=float).reshape(self._lead + (size,))
+
+    def _update_scales(self, scales, x, f):
+        return np.maximum(scales, np.abs(np.concatenate([x, np.reshape(f, self._lead + (1,))],
+                                                        axis=-1)))
+
+    def _forward_scaled(self, weights, x, scales):
+        W, v = self.unpack(weights)
+        at = self._at
+        u = np.concatenate([self._ones, x / scales[..., :3]], axis=-1)
+        pre = np.empty(self._lead + (HIDDEN,))
+        self._matvec(W, u, pre)
+        hidden = 2.0 / (1.0 + np.exp(-pre)) - 1.0
+        return scales[at[3]] * (v[at[0]] + self._rowdot(v[..., 1:], hidden)), u, hidden
+
+    def _train_scaled(self, weights, x, f, scales):
+        W, v = self.unpack(weights)
+        f_hat, u, hidden = self._forward_scaled(weights, x, scales)
+        minus_e = -((f - f_hat) / scales[self._at[3]])
+        grad_v = minus_e * np.concatenate([self._ones, hidden], axis=-1)
+        back = minus_e * v[..., 1:] * 0.5 * (1.0 - hidden**2)
+        grad_W = back[..., :, None] * u[..., None, :]
+        new = np.concatenate([(W - self._eta_matrix * grad_W).reshape(self._lead + (-1,)),
+                              v - self._eta * grad_v], axis=-1)
+        return new, f_hat
+
+    def _jacobian(self, weights, x, scales):
+        W, v = self.unpack(weights)
+        _, _, hidden = self._forward_scaled(weights, x, scales)
+        back = v[..., 1:] * 0.5 * (1.0 - hidden**2)
+        d_u = np.swapaxes(W[..., :, 1:], -1, -2) @ back[..., None]
+        return (scales[self._at[3]] * d_u[..., 0] / scales[..., :3])[..., ::-1]
+
+    def _secants(self, weights, x, scales, probe=None):
+        at = self._at
+        if probe is None:
+            floor, x0 = self._floor_x, x[at[0]]
+            if self._one:
+                xs = float(x0) if abs(x0) >= floor else (floor if x0 >= 0 else -floor)
+            else:
+                xs = np.where(np.abs(x0) >= floor, x0, np.where(x0 >= 0, floor, -floor))
+            vs, acc = scales[at[1]], scales[at[2]]
+        else:
+            xs, vs, acc = probe[at[0]], probe[at[1]], probe[at[2]]
+        zero = self._zero
+        one = self._one
+        f_x, f_xv, f_xva = (self._forward_scaled(weights, together(p, one), scales)[0]
+                            for p in ((xs, zero, zero), (xs, vs, zero), (xs, vs, acc)))
+        return together((f_xva - f_xv, f_xv - f_x, f_x), one), together((acc, vs, xs), one)
+
+    @staticmethod
+    def _average_secants(sums, rises, steps, decay):
+        new = np.concatenate([decay * sums[..., :3] + steps * rises,
+                              decay * sums[..., 3:] + steps * steps], axis=-1)
+        return new, new[..., :3] / new[..., 3:]
 
     def update_scales(self, scales, x, f):
         """The running scales after the sample x = (xe, xe', xe''), f (N,
         less f_s): elementwise max(scales, |x|, |f|)."""
-        return np.maximum(scales, np.abs(np.append(np.asarray(x, dtype=float), f)))
+        return self._update_scales(self._shaped(scales, 4), self._shaped(x, 3),
+                                   self._scalar(f))
 
     def forward_scaled(self, weights, x, scales):
-        """f_hat = s_f (v . [1, f(W [1, x / s])]) and the hidden activations."""
-        W, v = self.unpack(weights)
-        u = np.concatenate([[1.0], np.asarray(x, dtype=float) / scales[:3]])
-        hidden = 2.0 / (1.0 + np.exp(-(W @ u))) - 1.0
-        return scales[3] * (v[0] + v[1:] @ hidden), u, hidden
+        """f_hat = s_f (v . [1, f(W [1, x / s])]) and the inputs [1, x / s]
+        and hidden activations."""
+        return self._forward_scaled(self._shaped(weights, self.size), self._shaped(x, 3),
+                                    self._shaped(scales, 4))
 
     def train_scaled(self, weights, x, f, scales):
         """One step on 1/2 ((f - f_hat) / s_f)^2; returns the new weights and
         f_hat before the step (see the module doc)."""
-        W, v = self.unpack(weights)
-        f_hat, u, hidden = self.forward_scaled(weights, x, scales)
-        e = (f - f_hat) / scales[3]
-        grad_v = -e * np.concatenate([[1.0], hidden])
-        grad_W = np.outer(-e * v[1:] * 0.5 * (1.0 - hidden**2), u)
-        eta = self.c.learning_rate
-        return np.concatenate([(W - eta * grad_W).ravel(), v - eta * grad_v]), f_hat
+        return self._train_scaled(self._shaped(weights, self.size), self._shaped(x, 3),
+                                  self._scalar(f), self._shaped(scales, 4))
 
     def jacobian(self, weights, x, scales):
         """(M_e, B_e, K_e) = d f_hat / d (xe'', xe', xe) at x."""
-        W, v = self.unpack(weights)
-        _, _, hidden = self.forward_scaled(weights, x, scales)
-        d_u = W[:, 1:].T @ (v[1:] * 0.5 * (1.0 - hidden**2))
-        return (scales[3] * d_u / scales[:3])[::-1]
+        return self._jacobian(self._shaped(weights, self.size), self._shaped(x, 3),
+                              self._shaped(scales, 4))
 
     def operating_point(self, weights, x, scales, probe=None):
         """(M_e, B_e, K_e) by the thesis's secants at x* = xe (at least its
@@ -344,15 +503,9 @@ class ImpedanceNetwork:
         """The secants of :meth:`operating_point` as (rises, steps), each in
         the order (M_e, B_e, K_e): rises (f_xva - f_xv, f_xv - f_x, f_x)
         (N) over steps (a*, v*, x*)."""
-        if probe is None:
-            floor = self.c.scale_floor[0]
-            xs = float(x[0]) if abs(x[0]) >= floor else (floor if x[0] >= 0 else -floor)
-            vs, acc = scales[1], scales[2]
-        else:
-            xs, vs, acc = probe
-        f_x, f_xv, f_xva = (self.forward_scaled(weights, p, scales)[0]
-                            for p in ([xs, 0.0, 0.0], [xs, vs, 0.0], [xs, vs, acc]))
-        return np.array([f_xva - f_xv, f_xv - f_x, f_x]), np.array([acc, vs, xs])
+        return self._secants(self._shaped(weights, self.size), self._shaped(x, 3),
+                             self._shaped(scales, 4),
+                             None if probe is None else self._shaped(probe, 3))
 
     @staticmethod
     def average_secants(sums, rises, steps, decay):
@@ -360,13 +513,19 @@ class ImpedanceNetwork:
         of step * rise (3), sum of step^2 (3)] decayed by ``decay`` and
         updated with this sample's secants; returns (new sums, (M_e, B_e,
         K_e) = sum step * rise / sum step^2)."""
-        new = np.concatenate([decay * sums[:3] + steps * rises,
-                              decay * sums[3:] + steps * steps])
-        return new, new[:3] / new[3:]
+        return ImpedanceNetwork._average_secants(
+            *(np.asarray(a, dtype=float) for a in (sums, rises, steps)), decay)
 
     def initial_weights(self, seed):
+        """One environment's initial weights (its config's spread) from its seed."""
         rng = np.random.default_rng(seed)
         return rng.normal(0.0, self.c.initial_weight_std, self.size)
+
+    def initial_stack(self, seeds):
+        """The N environments' initial weights (N, size), environment i's
+        from ``seeds[i]`` and its own config, as each alone."""
+        return np.stack([np.random.default_rng(seed).normal(0.0, c.initial_weight_std, self.size)
+                         for seed, c in zip(seeds, self.configs)])
 
 
 class AppendixEImpedanceNetwork(ImpedanceNetwork):
@@ -388,120 +547,202 @@ class AppendixEImpedanceNetwork(ImpedanceNetwork):
 
     def _forward(self, weights, x0, x1, x2):
         self._pre_activations(weights, x0, x1, x2)
-        t = weights[self._SPLIT] + float(np.dot(weights[self._SPLIT + 1:], self._pre))
+        t = weights[self._v0] + self._rowdot(weights[self._v1], self._pre)
         self._f(self._pre.copy(), self._hidden)
         return self._S * (2.0 / (1.0 + np.exp(-t)) - 1.0)
 
     def _train(self, weights, x0, x1, x2, f, out):
         f_hat = self._forward(weights, x0, x1, x2)
-        q = f_hat / self._S
-        d = (f - f_hat) * self._S * 0.5 * (1.0 - q * q)
-        v1 = weights[self._SPLIT + 1:]
+        S, one = self._S, self._one
+        q = f_hat / S
+        d = (f - f_hat) * S * 0.5 * (1.0 - q * q)
+        v1 = weights[self._v1]
         hidden = self._hidden
         back = d * v1 * 0.5 * (1.0 - hidden * hidden)
-        out[:self._SPLIT] = weights[:self._SPLIT] + self._eta * np.outer(back, self._u1).ravel()
-        out[self._SPLIT:] = weights[self._SPLIT:] + self._eta * d * self._h1
+        outer = back[..., :, None] * self._u1_row
+        out[self._w_part] = weights[self._w_part] + (self._eta_matrix * outer).reshape(
+            self._lead + (self._SPLIT,))
+        out[self._v_part] = weights[self._v_part] + self._eta * d * self._h1
         return f_hat
 
     def _impedance(self, weights):
-        W = weights[:self._SPLIT].reshape(HIDDEN, 4)
-        v0, v1, S = weights[self._SPLIT], weights[self._SPLIT + 1:], self._S
-        f_x, f_xv, f_xva = (S * (2.0 / (1.0 + np.exp(-(v0 + np.dot(v1, W @ u)))) - 1.0)
-                            for u in self._probe_inputs)
-        xs, vs, acc = self.c.probe
-        return (f_xva - f_xv) / acc, (f_xv - f_x) / vs, f_x / xs
+        self._probe_layers(weights)
+        v0, v1, S = weights[self._v0], weights[self._v1], self._S
+        f_x, f_xv, f_xva = (S * (2.0 / (1.0 + np.exp(-(v0 + self._rowdot(v1, pre)))) - 1.0)
+                            for pre in self._probe_rows)
+        return (f_xva - f_xv) / self._acc, (f_xv - f_x) / self._vs, f_x / self._xs
 
 
-def make_network(config: NnIdentifierConfig) -> ImpedanceNetwork:
-    """The network for ``config.output_layer``."""
-    if config.output_layer == "appendix_e":
+def make_network(config: NnIdentifierConfig | Sequence[NnIdentifierConfig]) -> ImpedanceNetwork:
+    """The network for the configs' ``output_layer`` (one config, or one per
+    environment sharing it)."""
+    if _configs(config)[0].output_layer == "appendix_e":
         return AppendixEImpedanceNetwork(config)
     return ImpedanceNetwork(config)
 
 
 class NnIdentifier(LeafSystem):
-    """The neural identifier, trained every 1 ms after the first switch.
+    """The neural identifier, trained every 1 ms after the first switch, for
+    N environments (one config and one seed each; a single config and seed:
+    N = 1). The configs may differ in their numbers and in force_offset, not
+    in the options they switch (:func:`check_structure`); environment i's
+    initial weights come from its own seed, as alone.
 
-    Input ports: as RlsIdentifier (force, tip_pose, tip_velocity,
-      tip_acceleration, contact_info).
-    Output ports (state outputs): impedance (3): [M_e, B_e, K_e] (kg, N s/m,
-      N/m) by ``readout``;
-      force_estimate (1): the network's force before each step (N; plus
+    Input ports (env-major): as RlsIdentifier (force (N), tip_pose (3 N),
+      tip_velocity (3 N), tip_acceleration (3 N), contact_info (4 N)).
+    Output ports (state outputs, env-major): impedance (3 N): [M_e, B_e, K_e]
+      (kg, N s/m, N/m) by ``readout``;
+      force_estimate (N): the network's force before each step (N; plus
       f_s with ``force_offset``).
-    State: the weights (discrete), seeded; [started, f_s]; with
+    State (env-major): the weights (discrete), seeded; [started, f_s]; with
       ``normalization: running`` also the scales (s_x, s_v, s_a, s_f);
       with ``readout_time_constant_s`` also the readout's weighted sums
       [sum step * rise (3), sum step^2 (3)].
     """
 
-    def __init__(self, config: NnIdentifierConfig, seed: int):
+    def __init__(self, config: NnIdentifierConfig | Sequence[NnIdentifierConfig],
+                 seed: int | Sequence[int]):
         super().__init__()
-        self._net = make_network(config)
-        weights = self._net.initial_weights(seed)
-        self._force = self.DeclareVectorInputPort("force", 1)
-        self._pose = self.DeclareVectorInputPort("tip_pose", 3)
-        self._velocity = self.DeclareVectorInputPort("tip_velocity", 3)
-        self._acceleration = self.DeclareVectorInputPort("tip_acceleration", 3)
-        self._contact = self.DeclareVectorInputPort("contact_info", 4)
-        self._weights = self.DeclareDiscreteState(weights)
-        self._impedance = self.DeclareDiscreteState(self._net.impedance(weights))
-        self._estimate = self.DeclareDiscreteState(1)
-        self._switch = self.DeclareDiscreteState(2)
-        self._running = config.normalization == "running"
+        configs = _configs(config)
+        self._count = count = len(configs)
+        seeds = [seed] if np.ndim(seed) == 0 else list(seed)
+        if len(seeds) != count:
+            raise ScenarioError(f"identifiers.nn: {len(seeds)} seeds for {count} environments")
+        self._net = net = make_network(configs)
+        weights = net.initial_stack(seeds)
+        self._force = self.DeclareVectorInputPort("force", count)
+        self._pose = self.DeclareVectorInputPort("tip_pose", 3 * count)
+        self._velocity = self.DeclareVectorInputPort("tip_velocity", 3 * count)
+        self._acceleration = self.DeclareVectorInputPort("tip_acceleration", 3 * count)
+        self._contact = self.DeclareVectorInputPort("contact_info", 4 * count)
+        self._weights = self.DeclareDiscreteState(weights.reshape(-1))
+        self._impedance = self.DeclareDiscreteState(
+            net.impedance(weights[0] if count == 1 else weights).reshape(-1))
+        self._estimate = self.DeclareDiscreteState(count)
+        self._switch = self.DeclareDiscreteState(2 * count)
+        first = configs[0]
+        self._offset = np.array([c.force_offset for c in configs], dtype=bool)
+        self._running = first.normalization == "running"
         if self._running:
             # The running scales (s_x, s_v, s_a, s_f), from their floors.
-            self._scales = self.DeclareDiscreteState(np.asarray(config.scale_floor, dtype=float))
+            self._scales = self.DeclareDiscreteState(net._floor.reshape(-1))
             self._i_scales = int(self._scales)
-        tau = config.readout_time_constant_s
-        self._readout_decay = float(np.exp(-CONTROL_PERIOD / tau)) if tau > 0 else None
-        if self._readout_decay is not None:
+        self._readout = first.readout
+        self._averaged = first.readout_time_constant_s > 0
+        if self._averaged:
+            self._readout_decay = constants(
+                [np.exp(-CONTROL_PERIOD / c.readout_time_constant_s) for c in configs],
+                count == 1)
             # The readout's weighted sums: [sum step * rise, sum step^2] (3 + 3).
-            self._i_sums = int(self.DeclareDiscreteState(6))
+            self._i_sums = int(self.DeclareDiscreteState(6 * count))
         # Plain ints index the groups (cheaper to pass to pydrake).
         self._i_weights, self._i_impedance, self._i_estimate, self._i_switch = (
             int(i) for i in (self._weights, self._impedance, self._estimate, self._switch))
         DeclareSampledUpdate(self, self._update)
         self.DeclareStateOutputPort("impedance", self._impedance)
         self.DeclareStateOutputPort("force_estimate", self._estimate)
+        # Where each environment's values are in the inputs and the state
+        # (drake_contact.identification.stacked: one environment's are
+        # scalars, as alone; N's (N,) arrays).
+        self._one = one = count == 1
+        self._x = every(0, 3, one)
+        self._time = 0 if one else slice(0, None, 4)
+        self._x_switch = every(1, 4, one)
+        self._each = every(0, 1, one)
+        self._impedance_at = [at(k, one) for k in range(3)]
+        self._new = np.empty((count, net.size))
+
+    def _started(self, contact):
+        """Which environments are past their switch (N,), or None when all
+        are (N > 1; one environment is not stepped before its switch)."""
+        started = np.logical_not(np.less(contact[self._time], 0.0))
+        return None if np.count_nonzero(started) == self._count else started
 
     def _update(self, context, state):
         contact = self._contact.Eval(context)
-        if contact[0] < 0:
+        if contact[0] < 0 and (self._one or max(contact[4::4].tolist()) < 0):
             return
-        x0 = self._pose.Eval(context)[0] - contact[1]
-        x1 = self._velocity.Eval(context)[0]
-        x2 = self._acceleration.Eval(context)[0]
-        force = self._force.Eval(context)[0]
-        started, f_s = context.get_discrete_state(self._i_switch).value().tolist()
-        if not started:
-            f_s = force if self._net.c.force_offset else 0.0
-            state.get_mutable_value(self._i_switch)[:] = (1.0, f_s)
-        net = self._net
-        if self._running:
-            self._update_running(context, state, (x0, x1, x2), force - f_s, f_s)
-            return
-        weights = state.get_mutable_value(self._i_weights)
-        f_hat = net._train(context.get_discrete_state(self._i_weights).value(),
-                           float(x0), float(x1), float(x2), float(force - f_s), weights)
-        state.get_mutable_value(self._i_impedance)[:] = net._impedance(weights)
-        state.get_mutable_value(self._i_estimate)[0] = f_hat + f_s
-
-    def _update_running(self, context, state, x, f, f_s):
-        net = self._net
-        scales = net.update_scales(context.get_discrete_state(self._i_scales).value(), x, f)
-        weights, f_hat = net.train_scaled(context.get_discrete_state(self._i_weights).value(),
-                                          x, f, scales)
-        if net.c.readout == "jacobian":
-            impedance = net.jacobian(weights, x, scales)
-        elif self._readout_decay is not None:
-            sums, impedance = net.average_secants(
-                context.get_discrete_state(self._i_sums).value(),
-                *net.secants(weights, x, scales), self._readout_decay)
-            state.get_mutable_value(self._i_sums)[:] = sums
+        count, net = self._count, self._net
+        started = None if self._one else self._started(contact)
+        x0 = self._pose.Eval(context)[self._x] - contact[self._x_switch]
+        x1 = self._velocity.Eval(context)[self._x]
+        x2 = self._acceleration.Eval(context)[self._x]
+        force = self._force.Eval(context)[self._each]
+        switch = context.get_discrete_state(self._i_switch).value()
+        if self._one:
+            switched, f_s = switch.tolist()
+            if not switched:
+                f_s = force if self._offset[0] else 0.0
+                state.get_mutable_value(self._i_switch)[:] = (1.0, f_s)
         else:
-            probe = net.c.probe if net.c.readout == "probe" else None
-            impedance = net.operating_point(weights, x, scales, probe)
-        state.get_mutable_value(self._i_scales)[:] = scales
-        state.get_mutable_value(self._i_weights)[:] = weights
-        state.get_mutable_value(self._i_impedance)[:] = impedance
-        state.get_mutable_value(self._i_estimate)[0] = f_hat + f_s
+            switch = switch.reshape(count, 2)
+            first, f_s = np.equal(switch[:, 0], 0.0), switch[:, 1:]
+            if started is not None:  # environments before their switch: zeros in, state kept
+                first &= started
+                x0, x1, x2, force = (np.where(started[:, None], v, 0.0)
+                                     for v in (x0, x1, x2, force))
+            if np.count_nonzero(first):
+                f_s = np.where(first[:, None], np.where(self._offset[:, None], force, 0.0), f_s)
+                switched = (np.ones(count) if started is None
+                            else np.where(started, 1.0, switch[:, 0]))
+                new_switch = np.concatenate([switched[:, None], f_s], axis=1)
+                state.get_mutable_value(self._i_switch)[:] = new_switch.reshape(-1)
+        f = force - f_s
+        if self._running:
+            x = together((x0, x1, x2), self._one)
+            self._update_running(context, state, x, f, f_s, started)
+            return
+        weights = context.get_discrete_state(self._i_weights).value()
+        if started is None:  # into the state
+            new = state.get_mutable_value(self._i_weights)
+            new = new if self._one else new.reshape(count, net.size)
+        else:
+            new = self._new
+        if not self._one:
+            weights = weights.reshape(count, net.size)
+        f_hat = net._train(weights, x0, x1, x2, f, new)
+        M_e, B_e, K_e = net._impedance(new)
+        if started is None:
+            impedance = state.get_mutable_value(self._i_impedance)
+            if not self._one:
+                impedance = impedance.reshape(count, 3)
+            for index, value in zip(self._impedance_at, (M_e, B_e, K_e)):
+                impedance[index] = value
+            state.get_mutable_value(self._i_estimate)[self._each] = f_hat + f_s
+            return
+        self._store(context, state, started, ((self._i_weights, new),
+                                              (self._i_impedance, together((M_e, B_e, K_e),
+                                                                           False)),
+                                              (self._i_estimate, f_hat + f_s)))
+
+    def _store(self, context, state, started, groups):
+        """Writes each (group, new values (N, k)) of the started environments
+        (all when ``started`` is None)."""
+        for group, value in groups:
+            if started is not None:
+                old = context.get_discrete_state(group).value().reshape(self._count, -1)
+                value = np.where(started[:, None], np.reshape(value, (self._count, -1)), old)
+            state.get_mutable_value(group)[:] = value if self._one else np.reshape(value, -1)
+
+    def _update_running(self, context, state, x, f, f_s, started):
+        net = self._net
+        lead = net._lead
+
+        def read(group, size):
+            return context.get_discrete_state(group).value().reshape(lead + (size,))
+        scales = net._update_scales(read(self._i_scales, 4), x, f)
+        weights, f_hat = net._train_scaled(read(self._i_weights, net.size), x, f, scales)
+        groups = []
+        if self._readout == "jacobian":
+            impedance = net._jacobian(weights, x, scales)
+        elif self._averaged:
+            sums, impedance = net._average_secants(
+                read(self._i_sums, 6), *net._secants(weights, x, scales), self._readout_decay)
+            groups.append((self._i_sums, sums))
+        else:
+            probe = net._probe_point if self._readout == "probe" else None
+            rises, steps = net._secants(weights, x, scales, probe)
+            impedance = rises / steps
+        groups += [(self._i_scales, scales), (self._i_weights, weights),
+                   (self._i_impedance, impedance), (self._i_estimate, f_hat + f_s)]
+        self._store(context, state, started, groups)

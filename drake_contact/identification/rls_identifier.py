@@ -52,12 +52,15 @@ e_bar by about 0.1 N; a change of K_e at 20 N moves it by newtons.
 """
 
 import dataclasses as dc
+from collections.abc import Sequence
 
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
+from drake_contact.blocks import environment_configs
 from drake_contact.plant.arm import CONTROL_PERIOD, TIME_TOLERANCE_S, DeclareSampledUpdate
 from drake_contact.errors import ScenarioError
+from drake_contact.identification.stacked import at, constants, every, products
 
 
 @dc.dataclass
@@ -164,94 +167,193 @@ class RlsEstimator:
         return self.theta
 
 
-class RlsIdentifier(LeafSystem):
-    """RLS identification, sampled every 1 ms, active after the first switch.
+def _configs(config, prefix):
+    return environment_configs(config, RlsConfig, prefix)
 
-    Input ports:
-      force (1): filtered force (N); tip_pose (3), tip_velocity (3),
-      tip_acceleration (3): the estimator's (m, m/s, m/s^2; only x is used);
-      contact_info (4): [first switch time or -1, x, y, phi at the switch].
-    Output port: impedance (3): [M_e, B_e, K_e] (kg, N s/m, N/m), theta0
-      until the switch (state output).
-    State: theta (n), P (n x n), with n = 3, or 4 with the force offset;
-      with change detection also [filtered error, samples since the switch,
-      sample of the last reset] (RlsEstimator.detect).
+
+def _switches(config):
+    """The options a config switches on (its structure: the state's shape
+    and which arithmetic runs), by field."""
+    return {"force_offset": bool(config.force_offset),
+            "stiffness_drift": config.stiffness_drift > 0,
+            "change_threshold_n": config.change_threshold_n > 0}
+
+
+def check_structure(configs, prefix="identifiers.rls"):
+    """Raises ScenarioError naming the field if the environments' configs
+    differ in an option they switch on (their numbers may differ)."""
+    first = _switches(configs[0])
+    for i, config in enumerate(configs[1:], start=1):
+        for field, on in _switches(config).items():
+            if on != first[field]:
+                raise ScenarioError(
+                    f"{prefix}.{field}: environment {i} switches it {'on' if on else 'off'} and "
+                    f"environment 0 {'on' if first[field] else 'off'}: the environments must "
+                    "share a structure (which options are on), not only their numbers")
+
+
+class RlsIdentifier(LeafSystem):
+    """RLS identification, sampled every 1 ms, active after the first switch,
+    for N environments (one config each; a single config: N = 1). The
+    configs may differ in their numbers (theta0, p0, lambda, q, the change
+    detector's threshold, time constant and hold-off), not in the options
+    they switch on (:func:`check_structure`).
+
+    Input ports (env-major: environment i's k values at [k i, k i + k)):
+      force (N): filtered force (N); tip_pose (3 N), tip_velocity (3 N),
+      tip_acceleration (3 N): the estimator's (m, m/s, m/s^2; only x is used);
+      contact_info (4 N): [first switch time or -1, x, y, phi at the switch].
+    Output port: impedance (3 N): [M_e, B_e, K_e] (kg, N s/m, N/m), theta0
+      until the environment's switch (state output).
+    State (env-major): theta (n), P (n x n) per environment, with n = 3, or 4
+      with the force offset; with change detection also [filtered error,
+      samples since the switch, sample of the last reset] (RlsEstimator.detect).
+
+    Each environment's step is RlsEstimator.step's arithmetic, operation for
+    operation, elementwise over the arm axis, its products per environment
+    (:mod:`drake_contact.identification.stacked`): every environment's
+    values are bit for bit those of its identifier alone.
     """
 
-    def __init__(self, config: RlsConfig):
+    def __init__(self, config: RlsConfig | Sequence[RlsConfig], *, prefix="identifiers.rls"):
         super().__init__()
-        self._config = config
-        init = RlsEstimator(config)
-        self._n = init.n
-        self._force = self.DeclareVectorInputPort("force", 1)
-        self._pose = self.DeclareVectorInputPort("tip_pose", 3)
-        self._velocity = self.DeclareVectorInputPort("tip_velocity", 3)
-        self._acceleration = self.DeclareVectorInputPort("tip_acceleration", 3)
-        self._contact = self.DeclareVectorInputPort("contact_info", 4)
-        self._impedance = self.DeclareDiscreteState(init.theta[:3])
-        self._state = self.DeclareDiscreteState(np.concatenate([init.theta, init.P.ravel()]))
+        configs = _configs(config, prefix)
+        check_structure(configs, prefix)
+        self._count = count = len(configs)
+        inits = [RlsEstimator(c) for c in configs]
+        self._n = n = inits[0].n
+        self._force = self.DeclareVectorInputPort("force", count)
+        self._pose = self.DeclareVectorInputPort("tip_pose", 3 * count)
+        self._velocity = self.DeclareVectorInputPort("tip_velocity", 3 * count)
+        self._acceleration = self.DeclareVectorInputPort("tip_acceleration", 3 * count)
+        self._contact = self.DeclareVectorInputPort("contact_info", 4 * count)
+        self._impedance = self.DeclareDiscreteState(
+            np.concatenate([init.theta[:3] for init in inits]))
+        self._state = self.DeclareDiscreteState(
+            np.concatenate([np.concatenate([init.theta, init.P.ravel()]) for init in inits]))
         # Plain ints index the groups (cheaper to pass to pydrake).
         self._i_impedance, self._i_state = int(self._impedance), int(self._state)
         DeclareSampledUpdate(self, self._update)
         self.DeclareStateOutputPort("impedance", self._impedance)
-        self._lam = config.forgetting_factor
-        self._drift = config.stiffness_drift
-        self._detect = bool(config.change_threshold_n)
+        # The arithmetic is written once (drake_contact.identification.stacked):
+        # one environment's buffers without the environment axis and its
+        # constants Python floats, as alone; N environments' (N, ...).
+        self._one = one = count == 1
+        self._matvec, self._rowdot = products(one)
+        self._lam = constants([c.forgetting_factor for c in configs], one)
+        self._lam_matrix = self._lam if one else self._lam[:, :, None]
+        self._drift = constants([c.stiffness_drift for c in configs], one)
+        self._drifting = configs[0].stiffness_drift > 0
+        self._detect = configs[0].change_threshold_n > 0
         if self._detect:
-            self._i_change = int(self.DeclareDiscreteState(np.zeros(3)))
-            self._P0 = init.P0
+            self._i_change = int(self.DeclareDiscreteState(np.zeros(3 * count)))
+            self._P0 = inits[0].P0 if one else np.stack([init.P0 for init in inits])
+            # change_step's operands: alpha = T / tau, the hold-off less the
+            # tolerance, the threshold.
+            self._alpha = constants([CONTROL_PERIOD / c.change_time_constant_s for c in configs],
+                                    one)
+            self._holdoff = constants([c.change_holdoff_s - TIME_TOLERANCE_S for c in configs],
+                                      one)
+            self._threshold = constants([c.change_threshold_n for c in configs], one)
+        # Where each environment's values are in the inputs: x of a pose
+        # (3 per environment), the switch time and x of contact_info (4).
+        # (A float for one environment, a column (N, 1) for N: see
+        # drake_contact.identification.stacked.)
+        self._x = every(0, 3, one)
+        self._time = 0 if one else slice(0, None, 4)
+        self._x_switch = every(1, 4, one)
+        self._f = every(0, 1, one)
+        # An environment's k-th value of a buffer's last axis, and P's K_e, K_e.
+        self._at = [at(k, one) for k in range(3)]
+        self._K_K = (2, 2) if one else (slice(None), slice(2, 3), 2)
         # Work buffers of one sample's step (see _update).
-        n = self._n
-        self._values = np.empty(n + n * n)             # the state [theta, P.ravel()] read
-        self._theta = self._values[:n]
-        self._P = self._values[n:].reshape(n, n)
-        self._phi = np.ones(n)                         # [xe'', xe', xe(, 1)]
-        self._P_phi = np.empty(n)
-        self._gain = np.empty(n)
-        self._gain_column = self._gain[:, None]
-        self._theta_step = np.empty(n)
-        self._B = np.empty((n, n))
-        self._B_transposed = self._B.T
-        self._new = np.empty(n + n * n)                # the state written
-        self._new_theta = self._new[:n]
-        self._new_P = self._new[n:].reshape(n, n)
-        self._new_impedance = self._new[:3]
+        lead = () if one else (count,)
+        self._values = np.empty(lead + (n + n * n,))   # the state [theta, P.ravel()] read
+        self._theta = self._values[..., :n]
+        self._P = self._values[..., n:].reshape(lead + (n, n))
+        self._phi = np.ones(lead + (n,))               # [xe'', xe', xe(, 1)]
+        self._P_phi = np.empty(lead + (n,))
+        self._P_phi_row = self._P_phi[..., None, :]
+        self._gain = np.empty(lead + (n,))
+        self._gain_column = self._gain[..., :, None]
+        self._theta_step = np.empty(lead + (n,))
+        self._B = np.empty(lead + (n, n))
+        self._B_transposed = np.swapaxes(self._B, -1, -2)
+        self._new = np.empty(lead + (n + n * n,))     # the state written
+        self._new_theta = self._new[..., :n]
+        self._new_P = self._new[..., n:].reshape(lead + (n, n))
+        self._new_impedance = self._new[..., :3]
+
+    def _started(self, contact):
+        """Which environments are past their switch (N,), or None when all
+        are (N > 1; one environment is not stepped before its switch)."""
+        started = np.logical_not(np.less(contact[self._time], 0.0))
+        return None if np.count_nonzero(started) == self._count else started
 
     def _update(self, context, state):
         contact = self._contact.Eval(context)
-        if contact[0] < 0:
+        if contact[0] < 0 and (self._one or max(contact[4::4].tolist()) < 0):
             return
+        count = self._count
+        started = None if self._one else self._started(contact)
         # RlsEstimator.step's arithmetic, operation for operation, in the
         # buffers: theta and P (a copy of the state), phi, the new state.
-        self._values[:] = context.get_discrete_state(self._i_state).value()
+        self._values.reshape(-1)[:] = context.get_discrete_state(self._i_state).value()
         phi, P_phi, gain, B = self._phi, self._P_phi, self._gain, self._B
-        phi[0] = self._acceleration.Eval(context)[0]
-        phi[1] = self._velocity.Eval(context)[0]
-        phi[2] = self._pose.Eval(context)[0] - contact[1]
-        f, lam = self._force.Eval(context)[0], self._lam
+        at = self._at
+        phi[at[0]] = self._acceleration.Eval(context)[self._x]
+        phi[at[1]] = self._velocity.Eval(context)[self._x]
+        phi[at[2]] = self._pose.Eval(context)[self._x] - contact[self._x_switch]
+        f = self._force.Eval(context)[self._f]
+        if started is not None:  # environments before their switch: zeros in, state kept
+            phi[~started, :3] = 0.0
+            f = np.where(started[:, None], f, 0.0)
         if self._detect:
-            self._detect_change(context, state, phi, f)
-        np.dot(self._P, phi, out=P_phi)
-        np.divide(P_phi, lam + np.dot(phi, P_phi), out=gain)
-        np.multiply(gain, f - np.dot(phi, self._theta), out=self._theta_step)
+            self._detect_change(context, state, f, started)
+        self._matvec(self._P, phi, P_phi)
+        np.divide(P_phi, self._lam + self._rowdot(phi, P_phi), out=gain)
+        np.multiply(gain, f - self._rowdot(phi, self._theta), out=self._theta_step)
         np.add(self._theta, self._theta_step, out=self._new_theta)
-        np.multiply(self._gain_column, P_phi, out=B)
+        np.multiply(self._gain_column, self._P_phi_row, out=B)
         np.subtract(self._P, B, out=B)
-        np.divide(B, lam, out=B)
+        np.divide(B, self._lam_matrix, out=B)
         np.add(B, self._B_transposed, out=self._new_P)
         np.multiply(self._new_P, 0.5, out=self._new_P)
-        if self._drift:
-            self._new_P[2, 2] += self._drift * self._new_theta[2] * self._new_theta[2]
-        state.get_mutable_value(self._i_state)[:] = self._new
-        state.get_mutable_value(self._i_impedance)[:] = self._new_impedance
+        if self._drifting:
+            K = self._new_theta[self._at[2]]
+            self._new_P[self._K_K] += self._drift * K * K
+        new, impedance = self._new, self._new_impedance
+        if started is not None:
+            new = np.where(started[:, None], new, self._values)
+            impedance = np.where(started[:, None], new[:, :3],
+                                 context.get_discrete_state(self._i_impedance).value()
+                                 .reshape(count, 3))
+        state.get_mutable_value(self._i_state)[:] = new.reshape(-1)
+        state.get_mutable_value(self._i_impedance)[:] = impedance.reshape(-1)
 
-    def _detect_change(self, context, state, phi, f):
+    def _detect_change(self, context, state, f, started):
         """RlsEstimator.detect on the state: may reset the P read."""
-        error, samples, last = context.get_discrete_state(self._i_change).value()
-        samples += 1.0
-        error, reset = RlsEstimator.change_step(error, samples, last, f - np.dot(phi, self._theta),
-                                                self._config)
-        if reset:
-            self._P[:] = self._P0
-            error, last = 0.0, samples
-        state.get_mutable_value(self._i_change)[:] = [error, samples, last]
+        change = context.get_discrete_state(self._i_change).value()
+        if not self._one:
+            change = change.reshape(self._count, 3)
+        at = self._at
+        error, samples, last = change[at[0]], change[at[1]] + 1.0, change[at[2]]
+        error = error + self._alpha * (f - self._rowdot(self._phi, self._theta) - error)
+        armed = (samples - last) * CONTROL_PERIOD >= self._holdoff
+        reset = armed & (abs(error) > self._threshold)
+        if self._one:
+            if reset:
+                self._P[:] = self._P0
+                error, last = 0.0, samples
+            state.get_mutable_value(self._i_change)[:] = [error, samples, last]
+            return
+        if started is not None:
+            reset &= started[:, None]
+        if np.count_nonzero(reset):
+            self._P[reset[:, 0]] = self._P0[reset[:, 0]]
+            error = np.where(reset, 0.0, error)
+            last = np.where(reset, samples, last)
+        new = np.concatenate([error, samples, last], axis=1)
+        if started is not None:
+            new = np.where(started[:, None], new, change)
+        state.get_mutable_value(self._i_change)[:] = new.reshape(-1)
