@@ -796,14 +796,17 @@ def _add_control(builder, envs, scenarios, states, sensing, physics, actuation, 
         dacs = [env.AddNamedSystem("dac", SampleHold(CONTROL_PERIOD, 3, h))
                 if h < CONTROL_PERIOD else None for env in envs]
         guards = [env.AddNamedSystem("actuation_guard", FiniteGuard(3)) for env in envs]
+    if shared and scenarios[0].identifiers:
+        identifier_roles = builder.roles(None, AddIdentifiers(builder, _one_or_all(scenarios)))
+    else:
+        identifier_roles = [AddIdentifiers(env, s) if s.identifiers else None
+                            for env, s in zip(envs, scenarios)]
     out = []
-    for env, scenario, own, controller, m, p, arm, saturation, motor, dac, guard in zip(
-            envs, scenarios, inputs, outputs, measured, physics, actuation, saturations,
-            motors, dacs, guards):
+    for (env, scenario, own, controller, m, p, arm, saturation, motor, dac, guard,
+         identifiers) in zip(envs, scenarios, inputs, outputs, measured, physics, actuation,
+                             saturations, motors, dacs, guards, identifier_roles):
         torque = controller["joint_torque_commanded"]
-        identifiers = None
-        if scenario.identifiers:
-            identifiers = AddIdentifiers(env, scenario)
+        if identifiers is not None:
             for name, port in m.items():
                 if identifiers.HasInputPort(MEASUREMENTS[name].role):
                     env.Connect(port, identifiers.GetInputPort(MEASUREMENTS[name].role))

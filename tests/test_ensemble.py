@@ -83,18 +83,19 @@ def test_a_diverging_environment_stops_alone_and_the_other_15_run_on():
         _assert_same_logs(result, dc.simulate_scenario(scenario))
 
 
-def test_every_role_but_the_noise_serves_all_environments_in_one_system():
-    # One system per role: the per-environment ones are the noise sources
-    # (each seeded as alone) and any controller not declared for ensembles.
+@pytest.mark.parametrize("family", ["nn", "identify"])
+def test_every_role_but_the_noise_serves_all_environments_in_one_system(family):
+    # One system per role: the per-environment ones are the noise sources,
+    # each seeded as alone. The diagram's size does not grow with N.
     from drake_contact.diagram import leaf_systems
-    station = MakeEnsembleDiagram(_scenarios("identify", count=3))
-    per_env = {s.get_name().split("@")[0] for s in leaf_systems(station)
-               if "@" in s.GetSystemPathname()}
-    assert per_env <= {"force_sensor_gauge_noise", "controller", "law", "outputs",
-                       "stiffness_estimate", "identifiers"} | {
-        s.get_name() for s in leaf_systems(station)
-        if "identifiers@" in s.GetSystemPathname()}, per_env
-    assert "force_sensor_gauge_noise" in per_env
+    sizes = []
+    for count in (2, 3):
+        station = MakeEnsembleDiagram(_scenarios(family, count=count))
+        systems = list(leaf_systems(station))
+        per_env = {s.get_name().split("@")[0] for s in systems if "@" in s.GetSystemPathname()}
+        assert per_env == {"force_sensor_gauge_noise"}, per_env
+        sizes.append(len(systems) - count)
+    assert sizes[0] == sizes[1]
 
 
 def test_an_ensemble_station_carries_an_arm_axis():
