@@ -91,9 +91,14 @@ def test_two_points_with_one_name_are_refused(tmp_path):
         run_campaign(Twice(), tmp_path)
 
 
-def test_packed_points_write_the_logs_they_write_alone(tmp_path):
+def test_packed_points_write_the_logs_they_write_alone(tmp_path, monkeypatch):
     import numpy as np
+    from drake_contact.app import campaign
     from drake_contact.app.campaign import ensemble_packs
+    # Three points pack only below the default's smallest ensemble.
+    assert [len(pack) for pack in ensemble_packs(
+        [(p, tmp_path / p.name) for p in Stiffness().points()], 16, workers=1)] == [1, 1, 1, 1]
+    monkeypatch.setattr(campaign, "MIN_ENSEMBLE", 2)
     packed = run_campaign(Stiffness(), tmp_path / "packed", workers=1, ensemble=16)
     alone = run_campaign(Stiffness(), tmp_path / "alone", workers=1, ensemble=1)
     assert packed.tables["runs"] == alone.tables["runs"]

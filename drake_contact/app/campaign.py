@@ -278,6 +278,10 @@ def run_points(points, *, workers=None, scheduler=None, progress=None,
 #: ensembles user guide page measures it); 64 keeps a 20 s ensemble's logs
 #: near 1 GB.
 DEFAULT_ENSEMBLE = 64
+#: Fewer points than this run alone: below about 8 environments an
+#: ensemble's fixed per-step cost (its numpy systems) exceeds what it saves
+#: (measured: 0.77x at N = 4, 2.2x at N = 16 on nn_styrofoam).
+MIN_ENSEMBLE = 8
 MAX_ENSEMBLE = 256
 
 
@@ -287,7 +291,8 @@ def ensemble_packs(points, size, workers=1) -> list:
     and a duration (an ensemble runs as long as its longest), in their
     order, at most ``size`` a pack, the packs of a group of even sizes and
     a whole number of them per worker where the group allows (so that
-    every worker gets the same work). A point that records a playback, or whose scenario does not
+    every worker gets the same work); a pack would be smaller than
+    MIN_ENSEMBLE, its points run alone. A point that records a playback, or whose scenario does not
     load, is a pack of its own."""
     from drake_contact.scenario import load_scenario
     groups = {}
@@ -308,6 +313,8 @@ def ensemble_packs(points, size, workers=1) -> list:
         count = -(-len(group) // size)
         count = min(len(group), -(-count // workers) * workers) if workers > 1 else count
         share = -(-len(group) // count)
+        if share < MIN_ENSEMBLE:
+            share = 1
         packs += [group[i:i + share] for i in range(0, len(group), share)]
     return packs
 
