@@ -385,7 +385,8 @@ class CampaignResult:
 
     @property
     def mean_task_s(self) -> float:
-        """Mean time per point run now on its worker (s)."""
+        """Mean time per point run now on its worker (s; a point of an
+        ensemble of n: its n-th of the ensemble's time)."""
         durations = self._durations()
         return float(np.mean(durations)) if durations else 0.0
 
@@ -398,7 +399,8 @@ class CampaignResult:
                 if durations else 0.0)
 
     def _durations(self):
-        return [t["finished"] - t["started"] for t in self.timings.values() if t["started"]]
+        return [(t["finished"] - t["started"]) / t.get("ensemble", 1)
+                for t in self.timings.values() if t["started"]]
 
 
 class Campaign:
