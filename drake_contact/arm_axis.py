@@ -403,6 +403,20 @@ def _groups(programs, outputs):
                    [programs[e].constants for e in envs]) for envs in by_signature.values()]
 
 
+def _field_major_positions(count, sizes):
+    """(count, sum(sizes)) positions of each environment's values in a
+    vector that holds field f's values for environments 0..count-1, then
+    the next field's."""
+    positions = np.zeros((count, sum(sizes)), dtype=int)
+    offset = 0
+    for f, size in enumerate(sizes):
+        start = sum(sizes[:f])
+        for env in range(count):
+            positions[env, start:start + size] = offset + np.arange(size)
+            offset += size
+    return positions
+
+
 class CompiledExpressions(LeafSystem):
     """N environments' pieces (see :func:`StackedSymbolicSystem`) evaluated
     with numpy over all of them, each environment's values bit for bit
@@ -422,20 +436,8 @@ class CompiledExpressions(LeafSystem):
         output_fields = output_sizes or [p]
         # Where each environment's input, state and outputs sit in the
         # system's vectors: the values vector is [u; x; t].
-        input_at = np.zeros((count, m), dtype=int)
-        offset = 0
-        for f, size in enumerate(input_fields):
-            start = sum(input_fields[:f])
-            for env in range(count):
-                input_at[env, start:start + size] = offset + np.arange(size)
-                offset += size
-        output_at = np.zeros((count, p), dtype=int)
-        offset = 0
-        for f, size in enumerate(output_fields):
-            start = sum(output_fields[:f])
-            for env in range(count):
-                output_at[env, start:start + size] = offset + np.arange(size)
-                offset += size
+        input_at = _field_major_positions(count, input_fields)
+        output_at = _field_major_positions(count, output_fields)
         state_at = m * count + np.arange(count * k).reshape(count, k)
         time_at = np.full((count, 1), m * count + k * count)
         self._where = np.hstack([input_at, state_at, time_at])  # (N, m + k + 1)

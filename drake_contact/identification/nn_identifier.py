@@ -95,7 +95,8 @@ from pydrake.systems.framework import LeafSystem
 from drake_contact.blocks import environment_configs
 from drake_contact.plant.arm import CONTROL_PERIOD, DeclareSampledUpdate
 from drake_contact.errors import ScenarioError
-from drake_contact.identification.stacked import at, constants, every, products, together
+from drake_contact.identification.stacked import (
+    at, check_switches, constants, every, products, together)
 
 HIDDEN = 4
 OUTPUT_LAYERS = ("linear", "appendix_e")
@@ -201,14 +202,7 @@ def check_structure(configs, prefix="identifiers.nn"):
     """Raises ScenarioError naming the field if the environments' configs
     differ in an option they switch (their numbers may differ, and so may
     force_offset: an anchor f_s of 0 is the arithmetic without it)."""
-    first = _switches(configs[0])
-    for i, config in enumerate(configs[1:], start=1):
-        for field, value in _switches(config).items():
-            if value != first[field]:
-                raise ScenarioError(
-                    f"{prefix}.{field}: environment {i} has {value} and environment 0 "
-                    f"{first[field]}: the environments must share a structure (which options "
-                    "are on), not only their numbers")
+    check_switches(configs, _switches, prefix)
 
 
 def _configs(config):

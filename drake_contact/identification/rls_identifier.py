@@ -60,7 +60,7 @@ from pydrake.systems.framework import LeafSystem
 from drake_contact.blocks import environment_configs
 from drake_contact.plant.arm import CONTROL_PERIOD, TIME_TOLERANCE_S, DeclareSampledUpdate
 from drake_contact.errors import ScenarioError
-from drake_contact.identification.stacked import at, constants, every, products
+from drake_contact.identification.stacked import at, check_switches, constants, every, products
 
 
 @dc.dataclass
@@ -182,14 +182,7 @@ def _switches(config):
 def check_structure(configs, prefix="identifiers.rls"):
     """Raises ScenarioError naming the field if the environments' configs
     differ in an option they switch on (their numbers may differ)."""
-    first = _switches(configs[0])
-    for i, config in enumerate(configs[1:], start=1):
-        for field, on in _switches(config).items():
-            if on != first[field]:
-                raise ScenarioError(
-                    f"{prefix}.{field}: environment {i} switches it {'on' if on else 'off'} and "
-                    f"environment 0 {'on' if first[field] else 'off'}: the environments must "
-                    "share a structure (which options are on), not only their numbers")
+    check_switches(configs, _switches, prefix)
 
 
 class RlsIdentifier(LeafSystem):
