@@ -8,10 +8,6 @@ whose ports are exported by name, so a block is wired and tested like any
 other system: ``block.GetInputPort("wrench")``, ``block.GetOutputPort("voltage")``.
 """
 
-import math
-from types import SimpleNamespace
-
-import numpy as np
 from pydrake.systems.framework import DiagramBuilder, InputPort
 
 from drake_contact.errors import ScenarioError
@@ -50,60 +46,6 @@ def environment_configs(config, kind, prefix) -> list:
     if not configs:
         raise ScenarioError(f"{prefix}: no configs (one per environment, at least one)")
     return configs
-
-
-def _where(condition, a, b):
-    return a if condition else b
-
-
-def _clip(x, low, high):
-    return min(max(x, low), high)
-
-
-def _floor(x):
-    return float(math.floor(x))
-
-
-def _array_maximum(a, b):
-    return np.where(b > a, b, a)
-
-
-def _array_minimum(a, b):
-    return np.where(b < a, b, a)
-
-
-def _array_clip(x, low, high):
-    return _array_minimum(_array_maximum(x, low), high)
-
-
-#: The operations of an arm-axis kernel (one code for one environment and
-#: for N), on one environment's Python floats: ``where(c, a, b)`` is ``a if
-#: c else b``, ``maximum``/``minimum``/``clip`` Python's ``max``/``min``,
-#: ``floor`` a float, ``any``/``all`` of a bool the bool. A Python float
-#: operation costs some 30 ns, numpy's on an array of one about 1 us.
-SCALAR_OPS = SimpleNamespace(where=_where, maximum=max, minimum=min, clip=_clip, floor=_floor,
-                             copysign=math.copysign, sin=math.sin, cos=math.cos, any=bool,
-                             all=bool)
-#: The same operations elementwise on arrays (N,), each environment's
-#: result bit for bit its Python float result: ``maximum(a, b)`` is
-#: ``where(b > a, b, a)``, Python's ``max(a, b)`` (NaN and signed zeros
-#: included, where ``np.maximum`` differs), and so on.
-ARRAY_OPS = SimpleNamespace(where=np.where, maximum=_array_maximum, minimum=_array_minimum,
-                            clip=_array_clip, floor=np.floor, copysign=np.copysign, sin=np.sin,
-                            cos=np.cos, any=np.any, all=np.all)
-
-
-def arm_axis_ops(count):
-    """The kernel operations for ``count`` environments: Python floats for
-    one, arrays (count,) for more."""
-    return SCALAR_OPS if count == 1 else ARRAY_OPS
-
-
-def per_environment(values):
-    """One environment's value as a Python float; N environments' as an
-    array (N,) (the kernel's operands, see :func:`arm_axis_ops`)."""
-    values = list(values)
-    return float(values[0]) if len(values) == 1 else np.array(values, dtype=float)
 
 
 class Layout:

@@ -175,11 +175,11 @@ class _Wiring:
         return gather
 
     def resolve(self, source):
-        return source.axis.split(source.index) if isinstance(source, _View) else source
+        return source.whole.split(source.index) if _is_output_part(source) else source
 
     def Connect(self, source, destination):
-        if isinstance(destination, _Slot):
-            destination.gather.sources[destination.index] = source
+        if isinstance(destination, _Part):
+            destination.whole.sources[destination.index] = source
         else:
             self.builder.Connect(self.resolve(source), destination)
 
@@ -191,10 +191,10 @@ class _Wiring:
         order): their shared system's own port when they are its views in
         order, else a Multiplexer ``name`` of them."""
         first = sources[0]
-        if (isinstance(first, _View) and len(sources) == first.axis.count
-                and all(isinstance(s, _View) and s.axis is first.axis and s.index == i
+        if (_is_output_part(first) and len(sources) == first.whole.count
+                and all(_is_output_part(s) and s.whole is first.whole and s.index == i
                         for i, s in enumerate(sources))):
-            return first.axis.port
+            return first.whole.port
         mux = self.builder.AddNamedSystem(name, Multiplexer([first.size()] * len(sources)))
         for i, source in enumerate(sources):
             self.builder.Connect(self.resolve(source), mux.get_input_port(i))
@@ -230,14 +230,19 @@ class _Axis:
         return self._split.get_output_port(index)
 
 
-class _View:
-    """Environment ``index``'s part of an :class:`_Axis`."""
+class _Part:
+    """Environment ``index``'s part of an arm-axis port (an :class:`_Axis`
+    or a :class:`_Gather`)."""
 
-    def __init__(self, axis, index):
-        self.axis, self.index = axis, index
+    def __init__(self, whole, index):
+        self.whole, self.index = whole, index
 
     def size(self):
-        return self.axis.size
+        return self.whole.size
+
+
+def _is_output_part(port):
+    return isinstance(port, _Part) and isinstance(port.whole, _Axis)
 
 
 class _Gather:
@@ -250,16 +255,6 @@ class _Gather:
         self.name = f"{port.get_system().get_name()}_{port.get_name()}_envs"
 
 
-class _Slot:
-    """Environment ``index``'s part of a :class:`_Gather`."""
-
-    def __init__(self, gather, index):
-        self.gather, self.index = gather, index
-
-    def size(self):
-        return self.gather.size
-
-
 class _Role:
     """Environment ``index``'s view of a system serving all environments:
     its ports by name, as the system's own for one environment."""
@@ -268,16 +263,16 @@ class _Role:
         self._wiring, self._system, self._index = wiring, system, index
 
     def GetOutputPort(self, name):
-        return _View(self._wiring.axis(self._system.GetOutputPort(name)), self._index)
+        return _Part(self._wiring.axis(self._system.GetOutputPort(name)), self._index)
 
     def GetInputPort(self, name):
-        return _Slot(self._wiring.gather(self._system.GetInputPort(name)), self._index)
+        return _Part(self._wiring.gather(self._system.GetInputPort(name)), self._index)
 
     def get_output_port(self):
-        return _View(self._wiring.axis(self._system.get_output_port()), self._index)
+        return _Part(self._wiring.axis(self._system.get_output_port()), self._index)
 
     def get_input_port(self):
-        return _Slot(self._wiring.gather(self._system.get_input_port()), self._index)
+        return _Part(self._wiring.gather(self._system.get_input_port()), self._index)
 
     def HasOutputPort(self, name):
         return self._system.HasOutputPort(name)
@@ -433,8 +428,8 @@ def _add_arms(builder, scenarios, shared):
     # in turn): the whole input is environment-major.
     axis = builder.axis(builder.combined(states, "plant_state_envs"))
     actuation = builder.gather(plant.get_actuation_input_port())
-    return (plant, scene_graph, [_View(axis, i) for i in range(len(arms))],
-            [_Slot(actuation, i) for i in range(len(arms))], inertias)
+    return (plant, scene_graph, [_Part(axis, i) for i in range(len(arms))],
+            [_Part(actuation, i) for i in range(len(arms))], inertias)
 
 
 @dc.dataclass

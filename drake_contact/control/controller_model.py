@@ -14,7 +14,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from drake_contact.blocks import arm_axis_ops, environment_configs, per_environment
+from drake_contact.arm_axis import arm_axis_ops, per_environment
+from drake_contact.blocks import environment_configs
 from drake_contact.errors import ScenarioError
 from drake_contact.plant.planar_arm import (
     ArmParameters, jdot_qdot, mass_matrix_and_bias, tip_jacobian, tip_pose)

@@ -160,7 +160,8 @@ import numpy as np
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Demultiplexer
 
-from drake_contact.blocks import Layout, arm_axis_ops, environment_configs, per_environment
+from drake_contact.arm_axis import arm_axis_ops, per_environment
+from drake_contact.blocks import Layout, environment_configs
 from drake_contact.constants import CONTACT_THRESHOLD_N, RATIO_TOLERANCE
 from drake_contact.plant.arm import (
     CONTROL_PERIOD, LINK_LENGTHS, TIME_TOLERANCE_S, DeclareSampledUpdate, is_sample_time)
@@ -480,7 +481,7 @@ class HybridControlLaw(LeafSystem):
     environment, elementwise on arrays (N,) for more, its branches per
     environment (approach or contact, the switch and the loss, the held and
     the conditional integral, the clips) as masks through the operations of
-    :func:`drake_contact.blocks.arm_axis_ops`; environment i's outputs are
+    :func:`drake_contact.arm_axis.arm_axis_ops`; environment i's outputs are
     bit for bit those of the law with its config alone. The configs may
     differ in every number, not in the options they switch on (the law, and
     which optional terms are on: :func:`_check_structure`). A policy's

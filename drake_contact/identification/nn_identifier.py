@@ -95,8 +95,8 @@ from pydrake.systems.framework import LeafSystem
 from drake_contact.blocks import environment_configs
 from drake_contact.plant.arm import CONTROL_PERIOD, DeclareSampledUpdate
 from drake_contact.errors import ScenarioError
-from drake_contact.identification.stacked import (
-    at, check_switches, constants, every, products, together)
+from drake_contact.arm_axis import check_switches
+from drake_contact.identification.stacked import at, constants, every, products, together
 
 HIDDEN = 4
 OUTPUT_LAYERS = ("linear", "appendix_e")

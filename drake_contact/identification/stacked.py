@@ -18,7 +18,6 @@ IEEE operations whatever the shape.
 
 import numpy as np
 
-from drake_contact.errors import ScenarioError
 
 
 def constants(values, one):
@@ -62,19 +61,3 @@ def products(one):
     For one environment both are ``np.dot`` itself (no Python call in
     between: they run several times per sample)."""
     return (np.dot, np.dot) if one else (_matvec, _rowdot)
-
-
-def check_switches(configs, switches, prefix):
-    """Raises ScenarioError naming ``prefix.<field>`` if the environments'
-    configs differ in an option they switch (``switches(config)``: the
-    options by field; their numbers may differ)."""
-    def said(value):
-        return ("on" if value else "off") if isinstance(value, bool) else repr(value)
-    first = switches(configs[0])
-    for i, config in enumerate(configs[1:], start=1):
-        for field, value in switches(config).items():
-            if value != first[field]:
-                raise ScenarioError(
-                    f"{prefix}.{field}: environment {i} has it {said(value)} and environment "
-                    f"0 {said(first[field])}: the environments must share a structure (which "
-                    "options are on), not only their numbers")
