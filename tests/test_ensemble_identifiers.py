@@ -5,6 +5,8 @@ N one-environment ones on the same inputs, through the contact switch."""
 import dataclasses as dc
 import sys
 
+import textwrap
+
 import numpy as np
 import pytest
 from pydrake.systems.framework import DiagramBuilder
@@ -16,6 +18,7 @@ from drake_contact.identification.nn_identifier import NnIdentifier, NnIdentifie
 from drake_contact.identification.rls_identifier import RlsConfig, RlsIdentifier
 from drake_contact.plant.arm import CONTROL_PERIOD
 from drake_contact.plugins import MakeIdentifier
+from test_plugins import IDENTIFIERS
 
 SAMPLES = 300
 SIZES = {"force": 1, "tip_pose": 3, "tip_velocity": 3, "tip_acceleration": 3}
@@ -232,33 +235,9 @@ def test_add_identifiers_over_three_scenarios_is_three_alone_bit_for_bit():
     assert np.all(estimate[:, 2] != 2.0e5)
 
 
-PLUGIN = """
-from pydrake.systems.framework import LeafSystem
-
-
-class Ratio(LeafSystem):  # K_e = (f - 5 N) / (x - x at the switch), one environment
-    def __init__(self, floor):
-        super().__init__()
-        self.DeclareVectorInputPort("force", 1)
-        self.DeclareVectorInputPort("tip_pose", 3)
-        self.DeclareVectorInputPort("contact_info", 4)
-        state = self.DeclareDiscreteState(3)
-        self.DeclarePeriodicDiscreteUpdateEvent(1e-3, 0.0, self.update)
-        self.DeclareStateOutputPort("impedance", state)
-        self.floor = floor
-
-    def update(self, context, state):
-        info = self.GetInputPort("contact_info").Eval(context)
-        if info[0] < 0:
-            return
-        dx = self.GetInputPort("tip_pose").Eval(context)[0] - info[1]
-        f = self.GetInputPort("force").Eval(context)[0]
-        state.set_value([0.0, 0.0, (f - 5.0) / max(dx, self.floor)])
-
-
-def make(options):
-    return Ratio(options.get("floor", 1e-4))
-"""
+# The plug-ins' tests' ratio identifier: one environment, no ``ensemble``.
+PLUGIN = "from pydrake.systems.framework import LeafSystem\n" + textwrap.dedent(
+    IDENTIFIERS["ratio"])
 
 
 @pytest.fixture
