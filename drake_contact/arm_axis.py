@@ -397,14 +397,18 @@ _RELATIONS = {symbolic.FormulaKind.Lt: "<", symbolic.FormulaKind.Leq: "<=",
 # element by element.
 _EXP = np.frompyfunc(math.exp, 1, 1)
 _POW = np.frompyfunc(math.pow, 2, 1)
-#: exp overflows above this; C's exp gives inf there, Python's raises.
-_EXP_LIMIT = 709.0
+#: Python's exp is finite up to here (exp(709.78) = 1.797e308); above it,
+#: where C's exp overflows to inf and Python's raises, numpy's is used.
+_EXP_LIMIT = 709.78
 
 
 def _libm_exp(x):
     x = np.asarray(x, dtype=float)
-    inside = np.minimum(x, _EXP_LIMIT)  # NaN stays NaN
-    return np.where(x > _EXP_LIMIT, np.exp(x), _EXP(inside).astype(float))
+    result = _EXP(np.minimum(x, _EXP_LIMIT)).astype(float)  # NaN stays NaN
+    over = x > _EXP_LIMIT
+    if over.any():
+        result[over] = np.exp(x[over])
+    return result
 
 
 def _libm_pow(base, exponent):

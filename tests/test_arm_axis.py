@@ -246,3 +246,20 @@ def test_the_compiled_adc_and_tare_is_each_dsps_alone():
     def voltage(rng, env):
         return np.array([rng.choice([rng.normal(scale=0.05), 12.0, -12.0])])
     assert _compare_pieces(pieces, voltage) == 0
+
+
+def test_exp_and_pow_are_the_c_librarys_with_cs_inf_and_nan_where_python_raises():
+    import math
+    from drake_contact.arm_axis import _libm_exp, _libm_pow
+    rng = np.random.default_rng(7)
+    x = np.concatenate([rng.uniform(-745.0, 709.78, 20000), [-800.0, 0.0, 709.5, 709.78]])
+    assert np.array_equal(_libm_exp(x), [math.exp(v) for v in x])
+    with np.errstate(over="ignore"):
+        assert np.array_equal(_libm_exp(np.array([710.0, np.inf, -np.inf, np.nan])),
+                              [np.inf, np.inf, 0.0, np.nan], equal_nan=True)
+    base, exponent = rng.uniform(0.0, 3.0, 20000), rng.uniform(-3.0, 3.0, 20000)
+    assert np.array_equal(_libm_pow(base, exponent), [math.pow(b, e) for b, e in
+                                                       zip(base, exponent)])
+    with np.errstate(all="ignore"):
+        special = _libm_pow(np.array([-2.0, 0.0, 1e300]), np.array([0.5, -1.0, 2.0]))
+    assert np.isnan(special[0]) and special[1] == np.inf and special[2] == np.inf
