@@ -46,6 +46,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path, PurePosixPath
 
+from drake_contact.app import claims as thesis_claims
 from drake_contact.app.campaign import (
     DEFAULT_ENSEMBLE, Campaign, Point, failure_message, run_campaign)
 from drake_contact.constants import RATIO_TOLERANCE
@@ -231,6 +232,10 @@ def _result(experiment, figures, thesis, **expectation):
     return register
 
 
+#: The seeds a reproduction scores by default.
+SEEDS = (0, 1, 2)
+
+
 class _Missing(Exception):
     """A scenario the row needs did not complete."""
 
@@ -261,6 +266,21 @@ class _Runs:
                 if (self.out / self.folder(name) / stem).exists()]
 
 
+def run_metrics(out: Path, name: str, seed: int) -> dict:
+    """One completed run's metrics (raising :class:`claims.Missing` otherwise),
+    as the claims' scorer reads them."""
+    try:
+        return _Runs(Path(out), seed)[name]
+    except _Missing as missing:
+        raise thesis_claims.Missing(f"{missing} did not complete") from None
+
+
+def score_claims(out_dir, *, seeds=SEEDS, quick=False) -> list[thesis_claims.ClaimRow]:
+    """The thesis's claims (:data:`claims.CLAIMS`) scored on the runs in
+    ``out_dir`` over ``seeds``."""
+    return thesis_claims.score_claims(Path(out_dir), seeds, run_metrics, quick=quick)
+
+
 def _pct(x):
     return f"{100 * x:+.1f} %"
 
@@ -285,29 +305,6 @@ def _switch(runs):
         f"{s['impact_peak_force_n']:.1f} N (styrofoam), {r['impact_peak_force_n']:.1f} N "
         f"(rubber), then 20 N held (mean {s['force_mean_n']:.2f} / {r['force_mean_n']:.2f} N)",
         "f_d = 20 N", bounds, runs.images("identify_styrofoam", "fig4_2_switch.png"))
-
-
-@_result("sensor noise", "4.4", "about +-2 N")
-def _noise(runs):
-    m = runs["sensor_spectrum"]
-    p99 = m["rest_noise_p99_n"]
-    return Score(f"+-{p99:.2f} N (99th percentile of |f| at rest), "
-                 f"std {m['rest_noise_std_n']:.2f} N",
-                 "0 N (at rest, no contact)", _within("noise p99 (N)", p99, 1.5, 2.5, 0.1),
-                 runs.images("sensor_spectrum", "fig4_4_raw_force.png"))
-
-
-@_result("PSD, unfiltered vs 190 Hz filtered", "3.5, 3.7",
-         "same below 120 Hz; a 480 Hz component")
-def _psd(runs):
-    m = runs["sensor_spectrum"]
-    diff, line = m["psd_max_difference_below_100hz_db"], m["line_480hz_above_floor_db"]
-    return Score(f"spectra within {diff:.2f} dB below 100 Hz; 480 Hz line (aliased) "
-                 f"{line:.1f} dB above the floor",
-                 "the sensor's 480 Hz DAC loop",
-                 [Bound("PSD difference below 100 Hz (dB)", diff, "<=", 1.0, 0.1),
-                  Bound("480 Hz line above the floor (dB)", line, ">=", 6.0, 0.6)],
-                 runs.images("sensor_spectrum", "fig3_5_psd.png", "fig3_7_rc_gain.png"))
 
 
 def _identification_score(runs, material, images, method):
@@ -355,32 +352,6 @@ def _rls_rubber(runs):
     return _identification_score(runs, "rubber", ["fig6_4_identification.png"], "rls")
 
 
-@_result("RLS M_e and B_e", "6.1-6.5", "M_e negative", expected=False,
-         deviation="the thesis's RLS form on its own filtered signals (rls: force through the "
-                   "120 Hz filter, acceleration through F35) estimates M_e +0.56 to +0.92 kg "
-                   "(styrofoam) and +0.34 to +0.39 kg (rubber) over seeds 0-2; the same RLS on "
-                   "signals through one common filter (rls_matched) gives the negative M_e the "
-                   "thesis found (-0.01 to -0.36 kg), so the mismatch of the two filters' lags "
-                   "sets the sign")
-def _rls_mass(runs):
-    """The thesis's RLS form (``rls``: its filtered signals) must give the
-    negative M_e the thesis found, by more than the true 10 g."""
-    materials = ("styrofoam", "rubber")
-    impedance = {(mat, name): runs[f"identify_{mat}"][f"identified_impedance_{name}"]
-                 for mat in materials for name in ("rls", "rls_matched")}
-    truth = {mat: runs[f"identify_{mat}"]["true_impedance"] for mat in materials}
-    return Score(f"the thesis's form (rls) M_e {impedance['styrofoam', 'rls']['mass']:+.3f} / "
-                 f"{impedance['rubber', 'rls']['mass']:+.3f} kg, B_e "
-                 f"{impedance['styrofoam', 'rls']['damping']:.0f} / "
-                 f"{impedance['rubber', 'rls']['damping']:.0f} N s/m (styrofoam / rubber); "
-                 f"rls_matched M_e {impedance['styrofoam', 'rls_matched']['mass']:+.3f} / "
-                 f"{impedance['rubber', 'rls_matched']['mass']:+.3f} kg",
-                 f"M_e {truth['styrofoam']['mass']:g} kg, B_e {truth['styrofoam']['damping']:g} / "
-                 f"{truth['rubber']['damping']:g} N s/m",
-                 [Bound(f"rls M_e, {mat} (kg)", impedance[mat, "rls"]["mass"], "<=", 0.0,
-                        truth[mat]["mass"]) for mat in materials])
-
-
 @_result("NN identification, styrofoam", "6.6-6.8", "K_e 6.6 k vs f/x 6.7 k; about 0.6 s to learn")
 def _nn_styrofoam(runs):
     return _identification_score(
@@ -388,35 +359,9 @@ def _nn_styrofoam(runs):
                             "fig6_8_nn_output_error.png"], "nn")
 
 
-@_result("NN identification, smaller learning rate", "6.6",
-         "a smaller rate takes more time to learn", expected=False,
-         deviation="both rates bring K_e within 10 % 0.12 to 0.18 s after the switch, and which "
-                   "one first depends on the seed: the smaller rate is 0.026 s later on seed 0 "
-                   "and 0.022 and 0.043 s earlier on seeds 1 and 2")
-def _nn_slower(runs):
-    m = runs["identify_styrofoam"]
-    fast, slow = (m[f"identification_time_10pct_{n}_s"] for n in ("nn_offset", "nn_slow"))
-    later = None if fast is None else (math.inf if slow is None else slow - fast)
-    return Score(f"within 10 % from {_time(slow)} at 2e-5 vs {_time(fast)} at 1e-4",
-                 "K_e = 7.00 kN/m",
-                 [Bound("time to 10 % at 2e-5 minus at 1e-4 (s)", later, ">=", 0.0, 0.1)],
-                 runs.images("identify_styrofoam", "fig6_6_identification.png"))
-
-
 @_result("NN identification, rubber", "6.9", "K_e 56 k vs f/x 62 k; about 0.6 s")
 def _nn_rubber(runs):
     return _identification_score(runs, "rubber", ["fig6_9_identification.png"], "nn")
-
-
-@_result("hybrid only, K_fp = 0.25, no integral", "6.10", "cannot reach the desired force")
-def _hybrid_only(runs):
-    s, r = runs["hybrid_p_only_styrofoam"], runs["hybrid_p_only_rubber"]
-    return Score(f"mean |f - f_d| {s['force_mean_abs_error_n']:.2f} N (styrofoam), "
-                 f"{r['force_mean_abs_error_n']:.2f} N (rubber)",
-                 "f_d: 20 / 10 N square wave",
-                 [Bound(f"mean |f - f_d|, {material} (N)", m["force_mean_abs_error_n"], ">=",
-                        2.0, 0.2) for material, m in (("styrofoam", s), ("rubber", r))],
-                 runs.images("hybrid_p_only_styrofoam", "fig6_10_force_tracking.png"))
 
 
 def _nn_tracking(runs, names, images):
@@ -450,69 +395,6 @@ def _nn_square(runs):
 def _nn_sine(runs):
     return _nn_tracking(runs, ["nn_styrofoam_sine", "nn_rubber_sine"],
                         ["fig6_12_force_tracking.png", "fig6_17_force_tracking.png"])
-
-
-@_result("small learning rate 1e-5", "6.13-6.14", "lags at first, follows after a few minutes",
-         expected=False,
-         deviation="it lags, then adapts 64 to 65.5 s after contact, as the thesis shows, but "
-                   "loses contact 77.5 to 77.6 s after contact on every seed of 0-2, and 182 to "
-                   "207 times to the end, with 5 s RMSEs up to 12 N (the thesis's weight update "
-                   "has no bound: the weights keep drifting after adapting); --quick's 85 s run "
-                   "ends before the first loss but sees the drift on seed 0 (1.54 N in the "
-                   "window 70-75 s after contact)")
-def _small_lr(runs):
-    """Lags first, adapts after 30-200 s, and then keeps following: every
-    5 s window from the adaptation to the end of the run under 1.5 N, and
-    no contact lost after contact (Fig 6.14 shows it following "after a few
-    minutes", so a run that adapts and then loses contact does not
-    reproduce it)."""
-    m = runs["nn_small_lr"]
-    windows = m["force_rmse_windows_n"]
-    first = windows[0]
-    adapt = m.get("adaptation_time_s")
-    width = 5.0
-    late = [] if adapt is None else windows[math.ceil(adapt / width - RATIO_TOLERANCE):]
-    losses = m.get("contact_losses", 0)
-    measured = f"first 5 s RMSE {first:.2f} N; adapted {_time(adapt)} after contact"
-    if late:
-        measured += (f"; after it, 5 s RMSE up to {max(late):.2f} N over {len(late)} windows to "
-                     "the end")
-    if losses:
-        measured += (f"; contact lost {losses} times, first {_time(m.get('first_contact_loss_s'))}"
-                     " after contact")
-    return Score(measured, "f_d",
-                 [Bound("first 5 s RMSE (N)", first, ">=", 2.0, 0.2),
-                  *_within("adaptation time after contact (s)", adapt, 30.0, 200.0, 3.0),
-                  Bound("largest 5 s RMSE after adapting (N)", max(late) if late else None,
-                        "<=", 1.5, 0.15),
-                  Bound("contact losses", losses, "==", 0)],
-                 runs.images("nn_small_lr", "fig6_13_force_tracking.png"))
-
-
-@_result("y and phi during force control", "6.15", "small non-zero errors")
-def _y_phi(runs):
-    m = runs["nn_styrofoam"]
-    y, phi = m["y_max_abs_error_m"], m["phi_max_abs_error_rad"]
-    return Score(f"max |y| {y * 1e3:.2f} mm, max |phi| {phi * 1e3:.1f} mrad "
-                 "(true pose, nn_styrofoam)", "y_d = 0, phi_d = 0",
-                 [Bound("max |y| (mm)", y * 1e3, ">=", 0.0, 0.01),
-                  Bound("max |y| (mm)", y * 1e3, "<=", 2.0, 0.2),
-                  Bound("max |phi| (mrad)", phi * 1e3, ">=", 0.0, 0.1),
-                  Bound("max |phi| (mrad)", phi * 1e3, "<=", 20.0, 2.0)],
-                 runs.images("nn_styrofoam", "fig6_11_force_tracking.png"))
-
-
-@_result("adaptation time", "6.17", "about 5 s")
-def _adaptation(runs):
-    m = runs["nn_rubber_sine"]
-    adapt = m.get("adaptation_time_s")
-    return Score(f"{_time(adapt)} (first 5 s window with RMSE < 1.5 N, nn_rubber_sine)",
-                 "f_d", [Bound("adaptation time (s)", adapt, "<=", 10.0, 1.0)],
-                 runs.images("nn_rubber_sine", "fig6_17_force_tracking.png"))
-
-
-#: The seeds a reproduction scores by default.
-SEEDS = (0, 1, 2)
 
 
 def _score_seed(result: Result, runs: _Runs) -> Score:
@@ -653,7 +535,8 @@ class Reproduction(Campaign):
                           "message": metrics.get("message") or failure_message(run_dir)}]}
 
     def aggregate(self, tables):
-        return {"results": score(self.out, seeds=self.seeds, quick=self.quick)}
+        return {"results": score(self.out, seeds=self.seeds, quick=self.quick),
+                "claims": score_claims(self.out, seeds=self.seeds, quick=self.quick)}
 
     def resolved(self):
         return {"quick": self.quick, "seeds": list(self.seeds),
@@ -666,6 +549,7 @@ class Reproduction(Campaign):
         status = {(row["scenario"], row["seed"]): row["exit_status"]
                   for row in result.tables["runs"]}
         path = write_report(out, result.tables["results"], quick=self.quick, status=status,
+                            claims=result.tables["claims"],
                             seeds=self.seeds, interrupted=result.interrupted,
                             wall_s=time.perf_counter() - self.start)
         self.progress(f"wrote {path} and {path.with_suffix('.html')}")
@@ -744,12 +628,18 @@ def summary_line(rows) -> str:
             + (f", {missing} not run" if missing else ""))
 
 
-def write_report(out_dir, rows, *, quick, status, seeds=SEEDS, interrupted=False,
-                 wall_s=None) -> Path:
-    """Writes ``report.md``, ``report.html`` and the diagram's drawing
-    (:func:`write_diagram_drawing`) in ``out_dir``; ``status`` is
-    {(scenario, seed): exit status or None}. Returns the Markdown's path."""
+def write_report(out_dir, rows, *, quick, status, claims=None, seeds=SEEDS,
+                 interrupted=False, wall_s=None) -> Path:
+    """Writes ``report.md`` and ``report.html`` (the thesis's claims first,
+    then ``rows``: our forms beyond the thesis), ``claims.csv`` and the
+    diagram's drawing (:func:`write_diagram_drawing`) in ``out_dir``;
+    ``status`` is {(scenario, seed): exit status or None}; ``claims``
+    defaults to scoring :data:`claims.CLAIMS` on ``out_dir``'s runs. Returns
+    the Markdown's path."""
     out = Path(out_dir)
+    if claims is None:
+        claims = score_claims(out, seeds=seeds, quick=quick)
+    thesis_claims.write_claims_csv(out / "claims.csv", claims, seeds)
     svg = write_diagram_drawing(out)
     diagram_md = (f"The `{DIAGRAM_SCENARIO}` diagram: [diagram.svg](diagram.svg) "
                   "(Graphviz DOT: [diagram.dot](diagram.dot))." if svg else
@@ -759,18 +649,32 @@ def write_report(out_dir, rows, *, quick, status, seeds=SEEDS, interrupted=False
     scenarios = [name for name, _ in status]
     others = other_figures(out, scenarios, shown, seeds[0])
     title = "drake_contact: the thesis reproduced" + (" (quick)" if quick else "")
-    summary = (summary_line(rows) + f", over seeds {_seed_list(seeds)}"
+    summary = (thesis_claims.summary(claims) + f"; beyond the thesis: {summary_line(rows)}"
+               + f", over seeds {_seed_list(seeds)}"
                + (" — INTERRUPTED: partial report" if interrupted else "")
                + (f"; {wall_s:.0f} s wall time" if wall_s is not None else "") + ".")
     mode = ("--quick: long runs shortened, no hybrid-only baselines (the full run: "
             "`drake-contact reproduce --out DIR`)." if quick else "Full run.")
-    rule = ("A result is reproduced when every seed meets every bound by the bound's margin "
+    claims_rule = ("Each claim of the thesis in its own words, on its own forms, with the "
+                   "criterion written before the results were seen; a claim is reproduced when "
+                   "it holds on every seed. Calibration rows (fitted, or tied to a fitted "
+                   "parameter) are shown, not counted. Values per seed; claims.csv has them all.")
+    rule = ("Beyond the thesis: our forms against the ground truth. A result is reproduced "
+            "when every seed meets every bound by the bound's margin "
             f"(figures: seed {seeds[0]}).")
+    claim_deviations = [r for r in claims if r.claim.deviation or r.claim.calibration]
     header = ["experiment", "thesis figure", "thesis reports", "measured (ours)",
               "ground truth", "bounds", "result"]
 
-    md = [f"# {title}", "", summary, "", mode, "", rule, "",
-          "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    md = [f"# {title}", "", summary, "", mode, "", "## The thesis's claims", "",
+          claims_rule, ""]
+    md += thesis_claims.markdown_table(claims, seeds)
+    if claim_deviations:
+        md += ["", "### Causes and calibration", ""]
+        md += [f"- {r.claim.id} (line {r.claim.lines}): "
+               f"{r.claim.deviation or r.claim.calibration}." for r in claim_deviations]
+    md += ["", "## Beyond the thesis", "", rule, "",
+           "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for r in rows:
         cells = [r.experiment, r.figures, r.thesis, r.measured, r.truth, r.tolerance, r.verdict()]
         md.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
@@ -804,7 +708,24 @@ def write_report(out_dir, rows, *, quick, status, seeds=SEEDS, interrupted=False
 
     e = html.escape
     body = [f"<h1>{e(title)}</h1>", f"<p>{e(summary)}</p>", f"<p>{e(mode)}</p>",
-            f"<p>{e(rule)}</p>"]
+            "<h2>The thesis's claims</h2>", f"<p>{e(claims_rule)}</p>"]
+    claim_header = thesis_claims.TABLE_COLUMNS + [f"seed {s}" for s in seeds] + ["verdict"]
+    body += ["<table><tr>" + "".join(f"<th>{e(h)}</th>" for h in claim_header) + "</tr>"]
+    for r in claims:
+        cls = ("missing" if r.reproduced is None else "deviation" if r.claim.calibration
+               else "pass" if r.reproduced and r.as_expected
+               else "deviation" if r.as_expected else "fail")
+        cells = thesis_claims.claim_cells(r.claim) + [
+            thesis_claims.seed_values(r, s) for s in seeds]
+        body.append("<tr>" + "".join(f"<td>{e(c)}</td>" for c in cells)
+                    + f"<td class='{cls}'>{e(r.verdict)}</td></tr>")
+    body.append("</table>")
+    if claim_deviations:
+        body.append("<h3>Causes and calibration</h3><ul>" + "".join(
+            f"<li>{e(r.claim.id)} (line {e(r.claim.lines)}): "
+            f"{e(r.claim.deviation or r.claim.calibration)}.</li>" for r in claim_deviations)
+            + "</ul>")
+    body += ["<h2>Beyond the thesis</h2>", f"<p>{e(rule)}</p>"]
     body += ["<table><tr>" + "".join(f"<th>{e(h)}</th>" for h in header) + "</tr>"]
     for r in rows:
         cls = ("missing" if r.passed is None else "pass" if r.passed and r.expected
@@ -852,10 +773,12 @@ def write_report(out_dir, rows, *, quick, status, seeds=SEEDS, interrupted=False
 
 
 def reproduce(out_dir, *, quick=False, jobs=None, seeds=SEEDS,
-              progress=print, ensemble=DEFAULT_ENSEMBLE) -> tuple[list[Row], bool]:
+              progress=print, ensemble=DEFAULT_ENSEMBLE
+              ) -> tuple[list[Row], list[thesis_claims.ClaimRow], bool]:
     """Runs everything over ``seeds`` on ``jobs`` local workers (default one
     per core; the runs that share a controller in ensembles of up to
-    ``ensemble``) and writes the report; returns (rows, interrupted)."""
+    ``ensemble``) and writes the report; returns (the rows beyond the
+    thesis, the thesis's claims, interrupted)."""
     campaign = Reproduction(out_dir, quick=quick, seeds=seeds, progress=progress)
 
     def finished(done, failed, total, eta_s, name):
@@ -863,4 +786,4 @@ def reproduce(out_dir, *, quick=False, jobs=None, seeds=SEEDS,
         progress(f"finished {name} (exit {status}) [{done}/{total}, ETA {eta_s:.0f} s]")
     result = run_campaign(campaign, out_dir, workers=jobs, progress=finished,
                           ensemble=ensemble)
-    return result.tables["results"], result.interrupted
+    return result.tables["results"], result.tables["claims"], result.interrupted
