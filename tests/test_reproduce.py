@@ -20,6 +20,7 @@ import pytest
 
 from conftest import ON_QUICK_REPRODUCTION, needs_tool
 from drake_contact.app import reproduce
+from drake_contact.app.claims import CLAIMS
 from drake_contact.app.reproduce import JOBS, RESULTS, score, write_report
 
 SCENARIOS = [job.scenario for job in JOBS]
@@ -30,8 +31,15 @@ def _status(seeds=(0,)):
     return {(name, seed): None for name in SCENARIOS for seed in seeds}
 
 
-def _table_rows(markdown):
-    lines = [line for line in markdown.splitlines() if line.startswith("| ")]
+def _table_rows(markdown, section="## Beyond the thesis"):
+    """The cells of the first table after ``section``'s heading."""
+    after = markdown.split(section + "\n", 1)[1].splitlines()
+    start = next(i for i, line in enumerate(after) if line.startswith("| "))
+    lines = []
+    for line in after[start:]:
+        if not line.startswith("| "):
+            break
+        lines.append(line)
     return [re.split(r"(?<!\\)\|", line.strip())[1:-1] for line in lines[1:]]
 
 
@@ -39,8 +47,24 @@ def _table_rows(markdown):
 def test_quick_reproduction_fills_every_row_and_every_row_is_as_expected(quick_reproduction):
     out, result = quick_reproduction
     assert result.returncode == 0, result.stdout + result.stderr
-    assert "0 not as expected" in result.stdout
-    rows = _table_rows((out / "report.md").read_text())
+    assert result.stdout.count("0 not as expected") == 2  # the claims and the rows beyond
+    markdown = (out / "report.md").read_text()
+    # The claims first: every claim is scored on seed 0 or marked for the full run.
+    assert markdown.index("## The thesis's claims") < markdown.index("## Beyond the thesis")
+    claim_rows = _table_rows(markdown, "## The thesis's claims")
+    assert [cells[0].strip() for cells in claim_rows] == [c.id for c in CLAIMS]
+    for cells, claim in zip(claim_rows, CLAIMS):
+        verdict = cells[-1].strip()
+        if not claim.quick:
+            assert verdict == "not scored in --quick", cells
+        elif claim.calibration:
+            assert verdict.startswith("calibration"), cells
+        elif claim.deviation:
+            assert verdict.startswith(("documented deviation", "holds on these seeds")), cells
+        else:
+            assert verdict == "reproduced", cells
+    assert (out / "claims.csv").read_text().count("\n") == len(CLAIMS) + 1
+    rows = _table_rows(markdown)
     assert len(rows) == len(RESULTS)
     for cells, result in zip(rows, RESULTS):
         assert len(cells) == 7
@@ -51,7 +75,8 @@ def test_quick_reproduction_fills_every_row_and_every_row_is_as_expected(quick_r
             assert "documented deviation" in cells[-1], cells
     report_html = (out / "report.html").read_text()
     reproduced = sum(result.expectation(quick=True) for result in RESULTS)
-    assert report_html.count("class='pass'") == reproduced
+    assert report_html.count("class='pass'") == reproduced + sum(
+        "reproduced" == cells[-1].strip() for cells in claim_rows)
     assert "Documented deviations" in report_html
 
 
@@ -91,13 +116,14 @@ def test_scoring_marks_missing_runs_as_not_run(tmp_path):
 
 
 def test_a_run_too_short_for_a_result_fails_that_row_without_crashing(tmp_path):
-    run_dir = tmp_path / "sensor_spectrum" / "seed_0"
-    run_dir.mkdir(parents=True)
-    (run_dir / "metrics.json").write_text(json.dumps({"status": "completed"}))
+    for name in ("identify_styrofoam", "identify_rubber"):
+        run_dir = tmp_path / name / "seed_0"
+        run_dir.mkdir(parents=True)
+        (run_dir / "metrics.json").write_text(json.dumps({"status": "completed"}))
     rows = {r.experiment: r for r in score(tmp_path, seeds=(0,))}
-    assert rows["sensor noise"].passed is False
-    assert "rest_noise_p99_n" in rows["sensor noise"].measured
-    assert rows["switch from approach to hybrid"].passed is None  # its runs are missing
+    assert rows["switch from approach to hybrid"].passed is False
+    assert "mode_switches" in rows["switch from approach to hybrid"].measured
+    assert rows["NN controller, + 4 sin(pi t)"].passed is None  # its runs are missing
 
 
 def _default_sigint():
@@ -142,8 +168,7 @@ def test_ctrl_c_leaves_logs_and_a_partial_report(tmp_path):
 
 def test_results_keep_the_thesis_order():
     assert [result.claim.figures for result in RESULTS] == [
-        "4.2", "4.4", "3.5, 3.7", "6.1-6.3", "6.4-6.5", "6.1-6.5", "6.6-6.8", "6.6", "6.9",
-        "6.10", "6.11, 6.16", "6.12, 6.17", "6.13-6.14", "6.15", "6.17"]
+        "4.2", "6.1-6.3", "6.4-6.5", "6.6-6.8", "6.9", "6.11, 6.16", "6.12, 6.17"]
 
 
 SENSOR_SPECTRUM_METRICS = {
@@ -174,8 +199,7 @@ def _fake_runs(out):
 def test_every_row_states_its_claim_and_each_claim_is_written_once(tmp_path):
     _fake_runs(tmp_path)
     rows = score(tmp_path, seeds=(0,))
-    assert [r.passed for r in rows[1:3]] == [True, True]  # sensor noise, PSD: scored
-    assert rows[0].passed is None  # the others: not run
+    assert [r.passed for r in rows] == [None] * len(RESULTS)  # their runs are missing
     for row, result in zip(rows, RESULTS, strict=True):
         assert (row.experiment, row.figures, row.thesis) == dc.astuple(result.claim)
     source = inspect.getsource(reproduce)
@@ -220,33 +244,6 @@ def test_report_embeds_every_figure_and_draws_the_diagram(tmp_path, monkeypatch,
         assert page.index("<table>") < page.index("diagram.dot")
 
 
-def _small_lr_row(tmp_path, windows, losses=0, first_loss=None):
-    run_dir = tmp_path / "nn_small_lr" / "seed_0"
-    run_dir.mkdir(parents=True, exist_ok=True)
-    adaptation = next((5.0 * k + 5.0 for k, w in enumerate(windows) if w < 1.5), None)
-    (run_dir / "metrics.json").write_text(json.dumps({
-        "status": "completed", "force_rmse_windows_n": windows, "adaptation_time_s": adaptation,
-        "contact_losses": losses, "first_contact_loss_s": first_loss}))
-    return {r.experiment: r for r in score(tmp_path, seeds=(0,))}["small learning rate 1e-5"]
-
-
-def test_fig_6_14_needs_the_late_windows_and_no_contact_loss(tmp_path):
-    lag = [2.7] + [2.3] * 11
-    # Adapts (the window ending at 65 s) and keeps following to the end.
-    assert _small_lr_row(tmp_path, lag + [1.2] * 30).passed is True
-    # Follows, but within the bound's margin of 1.5 N: not reproduced.
-    row = _small_lr_row(tmp_path, lag + [1.4] * 30)
-    assert row.passed is False and row.marginal and row.verdict().startswith("MARGINAL")
-    # Adapts, then a late window misses.
-    row = _small_lr_row(tmp_path, lag + [1.4] * 5 + [1.6] + [1.4] * 5)
-    assert row.passed is False and "up to 1.60 N" in row.measured
-    # Adapts, then loses contact (our nn_small_lr): fails, and says so.
-    row = _small_lr_row(tmp_path, lag + [1.4] * 30, losses=182, first_loss=77.5)
-    assert row.passed is False and "contact lost 182 times, first 77.500 s" in row.measured
-    # Never adapts.
-    assert _small_lr_row(tmp_path, lag + [2.0] * 30).passed is False
-
-
 def test_the_long_run_scores_its_baseline_in_the_window_only():
     """nn_small_lr's hybrid-only baseline runs to 1 s past the scoring
     window (no row reads the rest); --quick shortens the long runs and runs
@@ -263,27 +260,30 @@ def test_the_long_run_scores_its_baseline_in_the_window_only():
     assert not reproduce.job_point(jobs["identify_rubber"], 2, quick=True, first_seed=1).record
 
 
-def _sensor_spectrum_seeds(out, p99_by_seed):
-    for seed, p99 in enumerate(p99_by_seed):
-        run = out / "sensor_spectrum" / f"seed_{seed}"
-        run.mkdir(parents=True)
-        (run / "metrics.json").write_text(json.dumps(SENSOR_SPECTRUM_METRICS
-                                                     | {"rest_noise_p99_n": p99}))
-    rows = score(out, seeds=tuple(range(len(p99_by_seed))))
-    return {r.experiment: r for r in rows}["sensor noise"]
+def _switch_row(out, peaks_by_seed):
+    """The switch row over seeds whose styrofoam switch peaked at ``peaks_by_seed``."""
+    for seed, peak in enumerate(peaks_by_seed):
+        for name in ("identify_styrofoam", "identify_rubber"):
+            run = out / name / f"seed_{seed}"
+            run.mkdir(parents=True)
+            (run / "metrics.json").write_text(json.dumps({
+                "status": "completed", "mode_switches": 1, "force_mean_n": 20.0,
+                "impact_peak_force_n": peak if name == "identify_styrofoam" else 30.0}))
+    rows = score(out, seeds=tuple(range(len(peaks_by_seed))))
+    return {r.experiment: r for r in rows}["switch from approach to hybrid"]
 
 
 def test_a_row_passes_only_when_every_seed_meets_every_bound_by_its_margin(tmp_path):
-    row = _sensor_spectrum_seeds(tmp_path / "a", [2.0, 1.9, 2.1])
+    row = _switch_row(tmp_path / "a", [30.0, 28.0, 33.0])
     assert row.passed is True and row.as_expected
-    assert "over seeds 0-2: noise p99 (N) 1.9 to 2.1" in row.measured
-    assert "noise p99 (N) <= 2.5 by 0.1" in row.tolerance
+    assert "peak force, styrofoam (N) 28 to 33" in row.measured
+    assert "peak force, styrofoam (N) <= 40 by 4" in row.tolerance
     # One seed inside the margin: every seed meets the bound, not its margin.
-    row = _sensor_spectrum_seeds(tmp_path / "b", [2.0, 2.45, 2.1])
+    row = _switch_row(tmp_path / "b", [30.0, 37.0, 33.0])
     assert row.passed is False and row.marginal and not row.as_expected
     assert row.verdict() == "MARGINAL"
     # One seed beyond the bound.
-    row = _sensor_spectrum_seeds(tmp_path / "c", [2.0, 2.6, 2.1])
+    row = _switch_row(tmp_path / "c", [30.0, 41.0, 33.0])
     assert row.passed is False and not row.marginal and row.verdict() == "FAIL"
 
 

@@ -601,6 +601,117 @@ CLAIMS: list[ThesisClaim] = [
 ]
 
 
+#: Measured causes of the claims the faithful model does not reproduce, by
+#: claim id (measured at seeds 0-2; a cause is an ablation that removes it,
+#: or "cause not isolated" with what was tried).
+DEVIATIONS = {
+    'S4': (
+        'the filtered force at rest peaks at 2.3-2.6 N on seeds 0-2 (0.67 N rms): the simulated'
+        " gauge noise below 120 Hz, which the 120 Hz filter passes, is more than Appendix E's "
+        '0.8 N switch allows. Cause not isolated: with a quarter of the gauge noise '
+        "(force_sensor.noise_scale 0.25) the switch runs (docs/reproduction.md, 'The code's 0.8"
+        " N switch'), but then the raw noise is far under S3's +-2 N; a noise model that meets "
+        "both (most of the raw noise at the sensor's 480 Hz output stage, above the filter's "
+        'band) was not built'
+    ),
+    'R5': (
+        'rls M_e reads +0.56 to +0.92 kg on seeds 0-2. Cause not isolated. Tried: rls_offset, '
+        'the same filtered signals with a force-offset regressor that eq. 5.2 does not have, '
+        "reads M_e -0.26 to -0.61 kg on the same runs, so the 5 N switch point's force offset "
+        "moves the sign; but the thesis's form has no such regressor, and the earlier stated "
+        "cause (the two filters' lags) is contradicted by that ablation, since rls_offset keeps"
+        ' those filters'
+    ),
+    'R6': (
+        'rls_raw reads M_e -0.005 to +0.026 kg and B_e +87 to +93 N s/m on seeds 0-2: neither '
+        'is negative. Cause not isolated; the raw velocity and acceleration (backward '
+        "differences of encoder positions) are not the thesis's only possible 'raw' signals, "
+        'and no other reading of them was tried'
+    ),
+    'R11': (
+        'rls B_e reads -161 to -176 N s/m on rubber over seeds 0-2 (true 150). Cause not '
+        'isolated. Tried: rls_offset (with a force-offset regressor) reads -134 to -153, so the'
+        ' switch-point offset is not it; rls_matched (one common filter on force and '
+        "kinematics, ours) reads +66 to +85, which points at the filters' relative lag on the "
+        "stiffer wall's faster transient, but that ablation changes the signals, not one cause"
+    ),
+    'R12': (
+        'rls M_e reads +0.34 to +0.39 kg on rubber over seeds 0-2. Cause not isolated; '
+        'rls_offset reads -1.22 to -1.38 kg (as R5: the switch-point offset moves the sign, and'
+        ' eq. 5.2 has no offset)'
+    ),
+    'N1': (
+        'nn_slow (2e-5) settles 0.001 s after nn (1e-4) on seed 0 and 0.011 and 0.039 s before '
+        "it on seeds 1 and 2. Cause not isolated: nn_slow is not the thesis's form at a smaller"
+        ' rate alone; it also trains on f - f_switch (force_offset) and starts from other '
+        "initial weights (each identifier is seeded by its place in the scenario's list), and "
+        'the two were not yet made to differ in the rate alone'
+    ),
+    'N2': (
+        'nn K_e settles 0.14-0.16 s after the switch on seeds 0-2, about four times sooner than'
+        " the thesis's 0.6 s. Cause not isolated. The network's output unit is linear here, "
+        "where section 5.2 says it works as section 4.5's (a sigmoid output); a +-20 N sigmoid "
+        'cannot reach the 20-28 N the wall returns, the thesis gives no output range, and a '
+        'scaled sigmoid output was not tried'
+    ),
+    'N3': (
+        "the output error's moving RMS stays under 1 N from 0.26 s on seeds 0 and 2, and only "
+        'from 3.98 s on seed 1. Cause not isolated; as N2 (a linear output unit learns sooner),'
+        " and on seed 1 the error hovers at the filtered force's noise"
+    ),
+    'N5': (
+        'nn K_e reads 9.2-9.4 kN/m against f / x 8.6 kN/m (+7 to +9 %) on seeds 0-2. Cause not '
+        "isolated; the network is probed at the thesis's 2 mm while the tip rests near 2.3 mm, "
+        "and its output unit is not the thesis's (N2)"
+    ),
+    'N6': (
+        'nn B_e reads 330-700 N s/m against rls B_e 67-73 N s/m on seeds 0-2. Cause not '
+        "isolated; the network's B_e rests on the switch transient alone and moves with its "
+        'initial weights (-65 to 560 N s/m over weight seeds), which are seeded by the '
+        "identifier's place in the list"
+    ),
+    'N7': (
+        'nn M_e reads -5.2 to -0.5 kg on styrofoam over seeds 0-2, never small and positive. '
+        'Cause not isolated; as N6, it rests on the transient and the initial weights, and the '
+        "output unit is not the thesis's (N2). Section 7.1's preference for the network (line "
+        '945) rests on this claim'
+    ),
+    'N8': (
+        'nn K_e settles 0.06-0.08 s after the switch on rubber over seeds 0-2, far sooner than '
+        'about 0.6 s. Cause not isolated; as N2'
+    ),
+    'N10': (
+        'nn K_e reads 86-88 kN/m against f / x 66-67 kN/m (+30 to +33 %) on rubber over seeds '
+        "0-2. Cause not isolated; the thesis's 0.2 mm probe lies below where the tip rests on "
+        'this wall (about 0.3 mm), which a secant through the switch point reads high'
+    ),
+    'N11': (
+        "rls B_e is negative on rubber (R11), so the network's positive B_e (98-551 N s/m) is "
+        "larger, not smaller. Cause not isolated; it follows R11's"
+    ),
+    'N12': (
+        'nn M_e reads -2.9, +0.28 and -0.22 kg on rubber over seeds 0-2: small and positive on '
+        'seed 1 only. Cause not isolated; as N7'
+    ),
+    'H1': (
+        'the measured force settles beyond each level (above 20 N, below 10 N) by at least 4.1 '
+        'N on seeds 0-2: it reaches and passes f_d. Ablation, seeds 0-2, 20 s runs: without the'
+        ' joint-2 drive error (arm.motor_torque_scale 1.2 -> 1.0; a parameter the thesis does '
+        "not give) the overshoot is 1.06-1.16 N, and also without the controller's model errors"
+        ' (mass and inertia scales 1.0) 0.94-1.05 N, still beyond f_d. So the drive error makes'
+        ' most of it, and what remains is not isolated'
+    ),
+    'H5': (
+        'it adapts 64-65.5 s after contact on seeds 0-2 as the thesis shows, but then loses '
+        'contact (190-236 changes of mode from 2 min on) and its worst 4 s slot after 2 min is '
+        "3.0-3.1 times the hybrid part alone's. Cause not isolated: Appendix E's weight update "
+        'has no bound, as modelled, and the weights keep drifting after adapting'
+    ),
+}
+CLAIMS = [dc.replace(claim, deviation=DEVIATIONS[claim.id]) if claim.id in DEVIATIONS else claim
+          for claim in CLAIMS]
+
+
 # Scoring -------------------------------------------------------------------------------
 
 
@@ -616,6 +727,10 @@ class ClaimRow:
     problems: dict[int, str] = dc.field(default_factory=dict)
     # Not scored in --quick (the claim needs a full run).
     skipped: bool = False
+    # Scored on every seed its deviation was documented on: only then does a
+    # deviation that holds count as unexpected (one that fails on one seed
+    # of three may hold on that seed's neighbours alone).
+    strict: bool = True
 
     @property
     def reproduced(self) -> bool | None:
@@ -633,14 +748,25 @@ class ClaimRow:
         if self.claim.calibration:
             return "calibration (holds)" if self.reproduced else "calibration (does not hold)"
         if self.claim.deviation:
-            return "documented deviation" if not self.reproduced else \
-                "not as expected (a documented deviation now holds)"
+            return ("documented deviation" if not self.reproduced else
+                    "not as expected (a documented deviation now holds)" if self.strict else
+                    "holds on these seeds (a documented deviation over seeds "
+                    + ", ".join(map(str, DOCUMENTED_SEEDS)) + ")")
         return "reproduced" if self.reproduced else "not as expected (does not hold)"
 
     @property
     def as_expected(self) -> bool:
-        return self.skipped or self.claim.calibration != "" or (
-            self.reproduced is not None and self.reproduced == (not self.claim.deviation))
+        if self.skipped or self.claim.calibration:
+            return True
+        if self.reproduced is None:
+            return False
+        if self.claim.deviation:
+            return not self.reproduced or not self.strict
+        return self.reproduced
+
+
+#: The seeds the deviations were documented on.
+DOCUMENTED_SEEDS = (0, 1, 2)
 
 
 def score_claims(out: Path, seeds, metrics: Callable[[Path, str, int], dict], *,
@@ -649,6 +775,7 @@ def score_claims(out: Path, seeds, metrics: Callable[[Path, str, int], dict], *,
     runs under ``out``; ``metrics(out, name, seed)`` reads one run's metrics
     (raising :class:`Missing`)."""
     rows = []
+    strict = set(DOCUMENTED_SEEDS) <= set(seeds)
     by_seed = {seed: Seed(out, seed, lambda name, seed=seed: metrics(out, name, seed))
                for seed in seeds}
     for claim in claims if claims is not None else CLAIMS:
@@ -668,7 +795,7 @@ def score_claims(out: Path, seeds, metrics: Callable[[Path, str, int], dict], *,
                 holds[seed] = bool(claim.test(values[seed]))
             except (TypeError, ZeroDivisionError):
                 holds[seed] = False
-        rows.append(ClaimRow(claim, values, holds, problems))
+        rows.append(ClaimRow(claim, values, holds, problems, strict=strict))
     return rows
 
 
