@@ -407,15 +407,15 @@ CLAIMS: list[ThesisClaim] = [
         lambda v: v["line_db"] >= 6.0),
     ThesisClaim(
         "S3", "344", "4.4",
-        "Since the noise of the force sensor is almost ±2N",
+        "Since the noise of the force sensor is almost $\\pm 2\\text{N}$",
         "sensor_spectrum: force_measured at rest",
         "the 99th percentile of |raw measured force - true force| at rest is 2 N +-25 % "
         "(1.5-2.5 N); \"almost +-2 N\" read as the band that holds nearly every sample",
         lambda s: _values(p99_n=s.metrics("sensor_spectrum")["rest_noise_p99_n"]),
         lambda v: 1.5 <= v["p99_n"] <= 2.5),
     ThesisClaim(
-        "S4", "1894", "",
-        "if (uff > 0.80){ ... s = 1; }  (Appendix E: contact declared when the filtered "
+        "S4", "1894, 1896", "",
+        "if (uff > 0.80){ ... s = 1;  (Appendix E: contact declared when the filtered "
         "force passes 0.8 N)",
         "identify_styrofoam, identify_rubber: force_filtered at rest",
         "the filtered force at rest (after the tare, before contact) never exceeds 0.8 N, so "
@@ -427,7 +427,7 @@ CLAIMS: list[ThesisClaim] = [
                  "practically identified during first 0.12 seconds.", "6.1", "R1"),
     _fx_reading("R2", STYRO, "742", "the estimated values of K_e in (c) is 6.8K(N/m)", "6.2",
                 6.8e3, "the styrofoam wall's stiffness is fitted to this reading"),
-    _k_matches_fx("R3", STYRO, "rls", "742", "(c) is 6.8K(N/m) and (f) is 7.2K(N/m) which are "
+    _k_matches_fx("R3", STYRO, "rls", "742, 770", "(c) is 6.8K(N/m) and (f) is 7.2K(N/m) which are "
                   "almost same (less than 6% difference)", "6.2", ALMOST_SAME,
                   "the thesis's own tolerance"),
     _realistic_damping("R4", STYRO, "rls", "770", "The damping coefficient B_e seems "
@@ -514,7 +514,7 @@ CLAIMS: list[ThesisClaim] = [
     _small_positive_mass("N12", RUBBER, "nn", "844", "The inertia coefficient M_e also seems "
                          "realistic since it is a small positive value.", "6.9"),
     ThesisClaim(
-        "H1", "887", "6.10",
+        "H1", "882, 887", "6.10",
         "Since the gain for force control is low and there is no error integral ..., the "
         "applied force (measured force) can not reach the desired force.",
         "hybrid_p_only_styrofoam",
@@ -531,7 +531,7 @@ CLAIMS: list[ThesisClaim] = [
              "manipulator follows acceptable well the desired force.", "6.12"),
     ThesisClaim(
         "H4", "901", "6.13",
-        "with a small learning rate (η = 0.00001). It can be seen that the force response can "
+        "with a small learning rate ($\\eta = 0.00001$). It can be seen that the force response can "
         "not follow the desired force immediately.",
         "nn_small_lr and its hybrid part alone",
         f"the slot ratio of H2 (from {SLOT_START_S:g} s after contact) is above "
