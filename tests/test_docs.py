@@ -24,6 +24,7 @@ DOCS = REPO / "docs"
 sys.path.insert(0, str(DOCS / "_ext"))
 
 import drake_contact as dc  # noqa: E402
+from drake_contact.app.claims import CLAIMS  # noqa: E402
 from drake_contact_docs import _study_markdown, scenario_rows  # noqa: E402
 
 pytestmark = pytest.mark.xdist_group("docs")
@@ -31,6 +32,14 @@ pytestmark = pytest.mark.xdist_group("docs")
 REPORT = """# drake_contact: the thesis reproduced
 
 1 of 1 results reproduced.
+
+## The thesis's claims
+
+| id | verdict |
+|---|---|
+| S3 | reproduced |
+
+## Beyond the thesis
 
 | experiment | result |
 |---|---|
@@ -57,6 +66,9 @@ def site(tmp_path_factory):
     figure.parent.mkdir(parents=True)
     figure.write_bytes((DOCS / "_static" / "force_tracking.png").read_bytes())
     (generated / "reproduce" / "report.md").write_text(REPORT)
+    (generated / "reproduce" / "claims.csv").write_text(
+        "id,thesis_lines,figures,claim,runs,criterion,seed,values,holds,verdict,cause\n"
+        "S3,344,4.4,x,x,x,0,p99_n=1.917,True,reproduced,\n")
     out = tmp_path_factory.mktemp("html")
     start = time.perf_counter()
     built = subprocess.run([sys.executable, str(DOCS / "build.py"), "--out", str(out)],
@@ -157,7 +169,14 @@ def test_the_station_signals_are_generated_from_the_station(site):
 
 def test_a_made_study_is_shown_and_a_missing_one_names_its_command(site):
     reproduction = page(site, "reproduction.html")
-    assert "1 of 1 results reproduced" in reproduction
+    assert "sensor noise" in reproduction and "PASS" in reproduction
+    # The claims table: the claims from the code, a run's values where it has them.
+    claims = text(site, "reproduction.html")
+    for curly, plain in (("\u2019", "'"), ("\u201c", '"'), ("\u201d", '"')):
+        claims = claims.replace(curly, plain)
+    for claim in CLAIMS:
+        assert claim.criterion[:60] in claims, claim.id
+    assert "p99_n=1.917 (holds)" in claims and claims.count("not run") >= len(CLAIMS) - 1
     assert re.search(r'<img [^>]*src="[^"]*fig4_4_raw_force[^"]*\.png"', reproduction)
     assert "metrics.json" not in reproduction  # the run list is left out
     maps = text(site, "studies/stability-maps.html")

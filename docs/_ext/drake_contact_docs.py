@@ -186,6 +186,40 @@ class ScoresTable(_MarkdownDirective):
             for score in SCORES))
 
 
+class ThesisClaims(_MarkdownDirective):
+    """The thesis's claims (``drake_contact.app.claims.CLAIMS``): their lines,
+    words, runs and criteria from the code; each seed's values and the
+    verdict from the reference reproduction's ``claims.csv`` where one is in
+    the build."""
+
+    def markdown(self):
+        import csv
+
+        from drake_contact.app.claims import CLAIMS, TABLE_COLUMNS, claim_cells
+
+        source = GENERATED / "reproduce" / "claims.csv"
+        scored = {}
+        if source.exists():
+            self.env.note_dependency(str(source))
+            with open(source, newline="") as stream:
+                for line in csv.DictReader(stream):
+                    values = line["values"] or "not run"
+                    mark = {"True": " (holds)", "False": " (fails)"}.get(line["holds"], "")
+                    entry = scored.setdefault(line["id"], {"verdict": line["verdict"]})
+                    entry[f"seed {line['seed']}"] = values + mark
+        seeds = sorted({key for entry in scored.values() for key in entry if key != "verdict"})
+        header = TABLE_COLUMNS + seeds + (["verdict"] if scored else [])
+        rows = []
+        for claim in CLAIMS:
+            entry = scored.get(claim.id, {})
+            rows.append(claim_cells(claim) + [entry.get(seed, "not run") for seed in seeds]
+                        + ([entry.get("verdict", "not run")] if scored else []))
+        note = ("" if scored else ":::{note}\nThe values and verdicts come from the reference "
+                "reproduction (`docs/_generated/reproduce/claims.csv`), which is not in this "
+                "build; `drake-contact reproduce` writes them to `out/claims.csv`.\n:::\n\n")
+        return note + _table(header, rows)
+
+
 class PolicySpaces(_MarkdownDirective):
     """The policy's observation and action, from policy_spaces."""
 
@@ -321,6 +355,7 @@ def setup(app):
     app.add_directive("scores", ScoresTable)
     app.add_directive("generated", Generated)
     app.add_directive("policy-spaces", PolicySpaces)
+    app.add_directive("thesis-claims", ThesisClaims)
     app.connect("autodoc-process-docstring", _reexported_data_doc)
     app.connect("env-check-consistency", _check_sections)
     app.connect("env-merge-info", _merge_sections)
