@@ -125,3 +125,15 @@ def test_packed_points_write_the_logs_they_write_alone(tmp_path, monkeypatch):
     assert [[p.name for p, _ in pack] for pack in ensemble_packs(points, 16, workers=2)] == [
         ["k5000", "k7000"], ["k9000"], ["bad"]]
     assert [len(pack) for pack in ensemble_packs(points, 1, workers=1)] == [1, 1, 1, 1]
+
+
+def test_ctrl_c_during_the_check_runs_nothing_and_still_reports(tmp_path, monkeypatch):
+    from drake_contact.app import campaign
+
+    def interrupted(points):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(campaign, "check_configurations", interrupted)
+    result = run_campaign(Stiffness(), tmp_path, workers=1)
+    assert result.interrupted and (result.ran, result.workers) == (0, 0)
+    assert (tmp_path / "report.md").read_text() == "0 completed\n"
+    assert not any((tmp_path / "runs").iterdir())

@@ -520,15 +520,21 @@ def run_campaign(campaign: Campaign, out_dir, *, workers=None, scheduler=None, p
     # Every configuration still to run is checked before the first runs (and
     # before anything is written): a bad one stops the campaign in one line
     # instead of failing run after run on the workers.
-    started = time.perf_counter()
-    checked = check_configurations([p for p, _ in todo])
+    started, interrupted = time.perf_counter(), False
+    try:
+        checked = check_configurations([p for p, _ in todo])
+    except KeyboardInterrupt:
+        # Ctrl-C while checking: nothing runs; the tables and report are
+        # still written, from the runs finished before.
+        checked, interrupted = 0, True
     check_s = time.perf_counter() - started
     runs.mkdir(parents=True, exist_ok=True)
     resolved = campaign.resolved()
     if resolved:
         (out / f"{campaign.name}.yaml").write_text(yaml.safe_dump(resolved, sort_keys=False))
-    batch = run_points(todo, workers=workers, scheduler=scheduler, progress=progress,
-                       points_per_task=points_per_task, ensemble=ensemble)
+    batch = (PointsRun({}, True, 0, 0.0, 0.0) if interrupted else
+             run_points(todo, workers=workers, scheduler=scheduler, progress=progress,
+                        points_per_task=points_per_task, ensemble=ensemble))
     for point, run_dir in todo:
         failure = (batch.timings.get(point.name) or {}).get("failure")
         if failure and failure_message(run_dir) is None:  # e.g. its worker died each time
