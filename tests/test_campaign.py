@@ -1,12 +1,14 @@
 """The campaign engine, extended the documented way: a campaign declared in
 the test (its points, scores, an aggregate table and a report) runs on a
-Dask LocalCluster, several points per task; a raising point is a row;
-rerunning resumes; the tables are the CSV files."""
+Dask LocalCluster, several points per task; a point whose configuration
+does not load is refused before any run; rerunning resumes; the tables are
+the CSV files. (Runs that raise or whose worker dies: test_campaign_failures.py.)"""
 
 import csv
 
 import pytest
 
+from drake_contact import ScenarioError
 from drake_contact.app.campaign import (
     Campaign, Point, finished_metrics, run_campaign, run_status, write_csv)
 
@@ -16,16 +18,15 @@ pytestmark = pytest.mark.xdist_group("test_campaign")
 # [docs: campaign]
 class Stiffness(Campaign):
     """push_constant (2.4 s: it touches at 2.1 s) on walls of three
-    stiffnesses, and one point whose override names no field."""
+    stiffnesses."""
 
     name = "stiffness"
     columns = {"runs": ["wall", "status"], "summary": ["completed"]}
 
     def points(self):
-        points = [Point(f"k{k:g}", "push_constant", ("simulation.duration=2.4",
-                                                     f"environment.stiffness={k}"), seed=1)
-                  for k in (5000.0, 7000.0, 9000.0)]
-        return points + [Point("bad", "push_constant", ("environment.stifness=1",))]
+        return [Point(f"k{k:g}", "push_constant", ("simulation.duration=2.4",
+                                                   f"environment.stiffness={k}"), seed=1)
+                for k in (5000.0, 7000.0, 9000.0)]
 
     def score(self, point, run_dir):
         metrics = finished_metrics(run_dir)
@@ -55,25 +56,33 @@ def test_a_campaign_declared_in_a_few_lines_runs_scores_and_resumes(tmp_path):
     seen = []
     result = run_campaign(Stiffness(), tmp_path, workers=2, points_per_task=2,
                           progress=lambda done, failed, total, eta, name: seen.append(name))
-    assert (result.ran, result.skipped, result.workers) == (4, 0, 2)
-    assert sorted(seen) == ["bad", "k5000", "k7000", "k9000"]
+    assert (result.ran, result.skipped, result.workers) == (3, 0, 2)
+    assert (result.checked, result.failed, result.diverged) == (1, {}, [])
+    assert sorted(seen) == ["k5000", "k7000", "k9000"]
     runs = _read(tmp_path / "runs.csv")
-    assert [r["wall"] for r in runs] == ["k5000", "k7000", "k9000", "bad"]  # the plan's order
-    assert [r["status"] for r in runs] == ["completed"] * 3 + ["failed"]
-    peaks = [float(r["peak_force_n"]) for r in runs[:3]]
+    assert [r["wall"] for r in runs] == ["k5000", "k7000", "k9000"]  # the plan's order
+    assert [r["status"] for r in runs] == ["completed"] * 3
+    peaks = [float(r["peak_force_n"]) for r in runs]
     assert all(p > 0 for p in peaks)
     assert _read(tmp_path / "summary.csv") == [{"completed": "3"}]
     assert (tmp_path / "report.md").read_text() == "3 completed\n"
     assert "walls:" in (tmp_path / "stiffness.yaml").read_text()
-    # The raising point says why in its folder, in one line.
-    failure = (tmp_path / "runs" / "bad" / "failure.json").read_text()
-    assert "environment.stifness" in failure
-    assert (tmp_path / "runs" / "bad" / "run.log").read_text().startswith("failed: ")
     assert (tmp_path / "runs" / "k5000" / "run.log").read_text().startswith("completed")
-    # Rerun: the finished points are skipped, the failed one is tried again.
+    # Rerun: the finished points are skipped, and not checked again.
     again = run_campaign(Stiffness(), tmp_path, workers=1)
-    assert (again.ran, again.skipped) == (1, 3)
+    assert (again.ran, again.skipped, again.checked) == (0, 3, 0)
     assert _read(tmp_path / "runs.csv") == runs
+
+
+def test_a_point_that_does_not_load_stops_the_campaign_before_any_run(tmp_path):
+    class WithATypo(Stiffness):
+        def points(self):
+            return super().points() + [Point("bad", "push_constant",
+                                             ("environment.stifness=1",))]
+
+    with pytest.raises(ScenarioError, match="environment.stifness is not a scenario key"):
+        run_campaign(WithATypo(), tmp_path / "out", workers=1)
+    assert not (tmp_path / "out").exists()
 
 
 def test_csv_tables_put_their_first_columns_first(tmp_path):
@@ -97,7 +106,7 @@ def test_packed_points_write_the_logs_they_write_alone(tmp_path, monkeypatch):
     from drake_contact.app.campaign import ensemble_packs
     # Three points pack only below the default's smallest ensemble.
     assert [len(pack) for pack in ensemble_packs(
-        [(p, tmp_path / p.name) for p in Stiffness().points()], 16, workers=1)] == [1, 1, 1, 1]
+        [(p, tmp_path / p.name) for p in Stiffness().points()], 16, workers=1)] == [1, 1, 1]
     monkeypatch.setattr(campaign, "MIN_ENSEMBLE", 2)
     packed = run_campaign(Stiffness(), tmp_path / "packed", workers=1, ensemble=16)
     alone = run_campaign(Stiffness(), tmp_path / "alone", workers=1, ensemble=1)
@@ -112,6 +121,19 @@ def test_packed_points_write_the_logs_they_write_alone(tmp_path, monkeypatch):
     # Packs: points sharing a controller, an even share per worker; a point
     # that does not load is alone.
     points = [(p, tmp_path / p.name) for p in Stiffness().points()]
+    points.append((Point("bad", "push_constant", ("environment.stifness=1",)), tmp_path / "bad"))
     assert [[p.name for p, _ in pack] for pack in ensemble_packs(points, 16, workers=2)] == [
         ["k5000", "k7000"], ["k9000"], ["bad"]]
     assert [len(pack) for pack in ensemble_packs(points, 1, workers=1)] == [1, 1, 1, 1]
+
+
+def test_ctrl_c_during_the_check_runs_nothing_and_still_reports(tmp_path, monkeypatch):
+    from drake_contact.app import campaign
+
+    def interrupted(points):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(campaign, "check_configurations", interrupted)
+    result = run_campaign(Stiffness(), tmp_path, workers=1)
+    assert result.interrupted and (result.ran, result.workers) == (0, 0)
+    assert (tmp_path / "report.md").read_text() == "0 completed\n"
+    assert not any((tmp_path / "runs").iterdir())

@@ -80,6 +80,57 @@ BROKEN = {
         def make(options):
             return 42
         """,
+    # Fits the station and builds; raises while running, on a soft wall
+    # only: it pushes 20 N (the built-in push, from 2.1 s, after the DSP's
+    # tare) and raises once the tip is 2.5 mm past the wall's rest surface
+    # (a 5 kN/m wall lets it 4 mm in at rest, a 60 kN/m one 0.33 mm, and under
+    # 1 mm at the impact).
+    "trips": """
+        from pydrake.systems.framework import DiagramBuilder
+        from drake_contact.control.builtin import push
+        class Tripwire(LeafSystem):
+            def __init__(self, surface_x, trip_m):
+                super().__init__()
+                self.DeclareVectorInputPort("tip_pose_measured", 3)
+                # Read as a force controller reads it (unused): the station then
+                # detects and scores its contact.
+                self.DeclareVectorInputPort("force_desired", 1)
+                self.DeclarePeriodicDiscreteUpdateEvent(1e-3, 0.0, self.update)
+                self.surface_x, self.trip_m = surface_x, trip_m
+            def update(self, context, state):
+                x = self.GetInputPort("tip_pose_measured").Eval(context)[0]
+                if x > self.surface_x + self.trip_m:
+                    raise ValueError(f"tripped at t = {context.get_time():.3f} s")
+        def make(options):
+            builder = DiagramBuilder()
+            pusher = builder.AddSystem(push({"force": 20.0, "start_time": 2.1}))
+            wire = builder.AddSystem(Tripwire(options.get("surface_x", 0.456),
+                                              options.get("trip_m", 2.5e-3)))
+            builder.ExportInput(pusher.GetInputPort("plant_state"), "plant_state")
+            for name in ("tip_pose_measured", "force_desired"):
+                builder.ExportInput(wire.GetInputPort(name), name)
+            builder.ExportOutput(pusher.GetOutputPort("joint_torque_commanded"),
+                                 "joint_torque_commanded")
+            return builder.Build()
+        """,
+    # Builds; kills its own process (a worker dying) once the simulated time
+    # reaches its option die_at_s.
+    "dies": """
+        import os
+        class Plugin(LeafSystem):
+            def __init__(self, die_at_s):
+                super().__init__()
+                self.DeclareVectorInputPort("force_filtered", 1)
+                self.DeclareVectorOutputPort("joint_torque_commanded", 3,
+                                             lambda c, o: o.SetZero())
+                self.DeclarePeriodicDiscreteUpdateEvent(1e-3, 0.0, self.update)
+                self.die_at_s = die_at_s
+            def update(self, context, state):
+                if context.get_time() >= self.die_at_s:
+                    os._exit(1)
+        def make(options):
+            return Plugin(options.get("die_at_s", 0.1))
+        """,
 }
 
 

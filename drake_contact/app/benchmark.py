@@ -330,7 +330,9 @@ def score_run(run: Run, run_dir: Path) -> dict:
            "seed": run.seed}
     metrics = finished_metrics(run_dir)
     if metrics is None:
-        return row | {"status": "failed", "message": failure_message(run_dir) or "not run"}
+        failure = failure_message(run_dir)
+        return row | {"status": "failed" if failure else "interrupted",
+                      "message": failure or "not run to the end"}
     status = run_status(metrics)
     if status == "completed" and metrics.get("contact_time_s") is None:
         status = "no_contact"
@@ -361,43 +363,74 @@ def _max(values):
     return float(np.max(values)) if values else None
 
 
+#: Outcomes of a run that rank a contender down: a result, but not the task
+#: done (a lost contact, a diverged run, never touching, not run to the end).
+_BAD = ("lost_contact", "diverged", "no_contact", "interrupted")
+#: Counts per contender and task: column -> the run statuses it counts. A
+#: failed run (it raised, or its worker died) is no result at all, apart
+#: from a diverged one.
+_COUNTS = {"runs_losing_contact": ("lost_contact",), "runs_diverged": ("diverged",),
+           "runs_no_contact": ("no_contact",), "runs_failed": ("failed",)}
+
+
 def aggregate(rows, contenders, tasks) -> list:
     """leaderboard.csv rows: per contender and task, the median and worst of
-    each score over the walls, the runs that lost contact or failed, and
-    the task rank; then one overall row per contender."""
+    each score over the walls, the runs that lost contact, diverged, never
+    touched or failed, and the task rank; then one overall row per
+    contender. A contender with a failed run in a task is not ranked on it
+    (``rank`` None), nor overall, and comes after every ranked one."""
     board = []
     for task in tasks:
         entries = []
         for contender in contenders:
             runs = [r for r in rows if r["contender"] == contender and r["task"] == task]
-            bad = sum(r["status"] in ("lost_contact", "diverged", "failed", "no_contact")
-                      for r in runs)
             entry = {"contender": contender, "task": task, "runs": len(runs),
-                     "runs_losing_contact": sum(r["status"] == "lost_contact" for r in runs),
-                     "runs_failed": sum(r["status"] in ("diverged", "failed", "no_contact")
-                                        for r in runs), "_bad": bad}
+                     "_bad": sum(r["status"] in _BAD for r in runs)}
+            entry |= {column: sum(r["status"] in statuses for r in runs)
+                      for column, statuses in _COUNTS.items()}
             for score in SCORES:
                 values = [r.get(score.column) for r in runs]
                 entry[f"{score.column}_median"] = _median(values)
                 entry[f"{score.column}_worst"] = _max(values)
             entries.append(entry)
-        board += _ranked(entries, lambda e: e["_bad"], "force_rmse_n_median")
+        board += _ranked_completed(entries, lambda e: e["_bad"], "force_rmse_n_median")
     for contender in contenders:
-        ranks = [e["rank"] for e in board if e["contender"] == contender and e["task"] != "all"]
-        board.append({"contender": contender, "task": "all", "mean_rank": float(np.mean(ranks)),
-                      "runs": sum(e["runs"] for e in board if e["contender"] == contender),
-                      "runs_losing_contact": sum(e["runs_losing_contact"] for e in board
-                                                 if e["contender"] == contender),
-                      "runs_failed": sum(e["runs_failed"] for e in board
-                                         if e["contender"] == contender),
-                      "force_rmse_n_median": _median([r.get("force_rmse_n") for r in rows
-                                                      if r["contender"] == contender])})
-    overall = sorted([e for e in board if e["task"] == "all"], key=lambda e: e["mean_rank"])
-    for rank, entry in enumerate(overall, start=1):
+        mine = [e for e in board if e["contender"] == contender]
+        ranks = [e["rank"] for e in mine]
+        entry = {"contender": contender, "task": "all",
+                 "mean_rank": None if None in ranks else float(np.mean(ranks)),
+                 "runs": sum(e["runs"] for e in mine),
+                 "force_rmse_n_median": _median([r.get("force_rmse_n") for r in rows
+                                                 if r["contender"] == contender])}
+        board.append(entry | {column: sum(e[column] for e in mine) for column in _COUNTS})
+    overall = [e for e in board if e["task"] == "all"]
+    ranked = sorted([e for e in overall if e["mean_rank"] is not None],
+                    key=lambda e: e["mean_rank"])
+    for rank, entry in enumerate(ranked, start=1):
         entry["rank"] = rank
+    for entry in overall:
+        entry.setdefault("rank", None)
     for entry in board:
         entry.pop("_bad", None)
     return board
+
+
+def _ranked_completed(entries, bad, score):
+    """:func:`_ranked` over the entries without a failed run; then the
+    others, unranked (``rank`` None), fewest failures first."""
+    ranked = _ranked([e for e in entries if not e["runs_failed"]], bad, score)
+    failed = sorted([e for e in entries if e["runs_failed"]], key=lambda e: e["runs_failed"])
+    for entry in failed:
+        entry["rank"] = None
+    return ranked + failed
+
+
+def _rank_cell(entry) -> str:
+    """A board's rank cell: the rank, or ``failed k/n`` for an unranked
+    contender."""
+    if entry["rank"] is None:
+        return f"failed {entry['runs_failed']}/{entry['runs']}"
+    return str(entry["rank"])
 
 
 def _fmt(value, digits=2):
@@ -416,23 +449,30 @@ def markdown(board, suite_name, suite: Suite, wall_s=None, rows=None) -> str:
              "on the true contact force."
              + (f" Wall time of the suite: {wall_s / 60:.1f} min." if wall_s else ""), "",
              "## Overall", "",
-             "| rank | contender | mean task rank | runs losing contact | runs failed "
-             "| median force RMSE (N) |", "|---|---|---|---|---|---|"]
-    for e in sorted([e for e in board if e["task"] == "all"], key=lambda e: e["rank"]):
-        lines.append(f"| {e['rank']} | {e['contender']} | {_fmt(e['mean_rank'])} | "
-                     f"{e['runs_losing_contact']}/{e['runs']} | {e['runs_failed']} | "
+             "A contender with a failed run (it raised, or its worker died) is not ranked: "
+             "it shows `failed k/n` and comes last. A diverged run is a result, counted apart.",
+             "",
+             "| rank | contender | mean task rank | runs losing contact | runs diverged "
+             "| runs never in contact | runs failed | median force RMSE (N) |",
+             "|---|---|---|---|---|---|---|---|"]
+    overall = [e for e in board if e["task"] == "all"]
+    for e in sorted(overall, key=lambda e: (e["rank"] is None, e["rank"] or e["runs_failed"])):
+        lines.append(f"| {_rank_cell(e)} | {e['contender']} | {_fmt(e['mean_rank'])} | "
+                     f"{e['runs_losing_contact']}/{e['runs']} | {e['runs_diverged']} | "
+                     f"{e['runs_no_contact']} | {e['runs_failed']}/{e['runs']} | "
                      f"{_fmt(e['force_rmse_n_median'])} |")
     for task in suite.tasks:
         shown = [score for score in SCORES if score.show]
         lines += ["", f"## {task}: {TASKS[task][0]}", "",
-                  "| rank | contender | lost contact | "
+                  "| rank | contender | lost contact | diverged | "
                   + " | ".join(score.header for score in shown) + " |",
-                  "|---|---|---|" + "---|" * len(shown)]
+                  "|---|---|---|---|" + "---|" * len(shown)]
         for e in [e for e in board if e["task"] == task]:
             cells = [" / ".join(_fmt(e[f"{score.column}_{aggregate}"], score.digits)
                                 for aggregate in score.show) for score in shown]
-            lines.append(f"| {e['rank']} | {e['contender']} | {e['runs_losing_contact']}/"
-                         f"{e['runs']} | " + " | ".join(cells) + " |")
+            lines.append(f"| {_rank_cell(e)} | {e['contender']} | {e['runs_losing_contact']}/"
+                         f"{e['runs']} | {e['runs_diverged']}/{e['runs']} | "
+                         + " | ".join(cells) + " |")
         if rows is not None:
             contenders = [e["contender"] for e in board if e["task"] == task]
             lines += ["", "Each run's force RMSE (o; x: lost contact):", "", "```",
@@ -521,8 +561,9 @@ class BenchmarkCampaign(Campaign):
     columns = {
         "runs": ["contender", "task", "wall", "stiffness_n_per_m", "damping_n_s_per_m", "seed",
                  "status", "message"],
-        "leaderboard": ["rank", "contender", "task", "runs", "runs_losing_contact",
-                        "runs_failed", "mean_rank", "force_rmse_n_median"],
+        "leaderboard": ["rank", "contender", "task", "runs", "runs_failed", "runs_diverged",
+                        "runs_losing_contact", "runs_no_contact", "mean_rank",
+                        "force_rmse_n_median"],
         "identifiers": ["identifier", "task", "wall", "stiffness_n_per_m", "damping_n_s_per_m",
                         "seed", "status"],
         "identifier_leaderboard": ["rank", "identifier", "task", "runs", "runs_settled_5pct",

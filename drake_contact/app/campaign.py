@@ -18,8 +18,15 @@ at ``scheduler``; a task may hold several points, run one after the other
 on its worker), scores every point from its folder, writes each table as
 ``<table>.csv`` and calls the report.
 
-A point that diverges or raises is a row with its status, never a crashed
-campaign: a raising run writes ``failure.json`` in its folder. Every run
+Before any run, :func:`check_configurations` loads every point's scenario
+and builds the run diagram of each distinct structure once, as ``drake-contact
+run`` would: a configuration that cannot be built (a plug-in whose ports do
+not fit, a value out of range) raises the ScenarioError ``run`` raises, and
+nothing runs. A point that diverges or raises while running is a row with
+its status, never a crashed campaign: a raising run (or one whose worker
+died each time Dask tried it) writes ``failure.json`` in its folder, and
+:attr:`CampaignResult.failed` names it; a diverged run is a result, named
+apart in :attr:`CampaignResult.diverged`. Every run
 writes ``task.json`` (when and where it ran) and ``run.log`` (its outcome in
 one line). Ctrl-C stops the campaign: points not started are not started,
 running ones stop at their next check (every 0.1 s simulated) and write
@@ -75,10 +82,64 @@ def finished_metrics(run_dir: Path):
     return metrics if metrics.get("status") in ("completed", "diverged") else None
 
 
+def run_outcome(run_dir: Path) -> str:
+    """A run folder's outcome: metrics.json's status when it has one
+    (``completed``, ``diverged``, ``interrupted``), ``failed`` when the run
+    raised or its worker died (failure.json), else ``not_run``."""
+    try:
+        return json.loads((Path(run_dir) / "metrics.json").read_text())["status"]
+    except (OSError, ValueError, KeyError):
+        return "failed" if failure_message(run_dir) is not None else "not_run"
+
+
 def failure_message(run_dir: Path):
     """The message a raising run left in ``failure.json``, else None."""
     path = Path(run_dir) / "failure.json"
     return json.loads(path.read_text())["message"] if path.exists() else None
+
+
+#: The fields of a scenario that a build only passes on as numbers and never
+#: checks against another field (their ranges are checked when the scenario
+#: loads), as paths into ``dataclasses.asdict(scenario)``: the wall a
+#: campaign varies per run, the run's seed and length, the scoring window,
+#: the text. Configurations that differ only in these share a structure, and
+#: one build checks them all (:func:`configuration_structure`).
+PER_RUN_FIELDS = (("description",), ("thesis_figures",), ("simulation", "seed"),
+                  ("simulation", "duration"), ("environment", "stiffness"),
+                  ("environment", "damping"), ("scoring",))
+
+
+def configuration_structure(scenario) -> str:
+    """What a build of ``scenario`` depends on: the scenario as a mapping
+    without :data:`PER_RUN_FIELDS`, as JSON text (equal for two scenarios
+    that one build checks alike)."""
+    data = dc.asdict(scenario)
+    for path in PER_RUN_FIELDS:
+        parent = data
+        for key in path[:-1]:
+            parent = parent[key]
+        parent.pop(path[-1])
+    # default=repr: a plug-in's options may hold values JSON has no form for.
+    return json.dumps(data, sort_keys=True, default=repr)
+
+
+def check_configurations(points) -> int:
+    """Loads the scenario of every Point of ``points`` and builds the run
+    diagram (:func:`drake_contact.simulation.MakeRunDiagram`, as
+    ``drake-contact run`` builds it) of each distinct structure
+    (:func:`configuration_structure`) once, in the points' order. Raises the
+    ScenarioError of the first that does not load or build, the one line
+    ``run`` prints; returns the number of builds."""
+    from drake_contact.scenario import load_scenario
+    from drake_contact.simulation import MakeRunDiagram
+    built = set()
+    for point in points:
+        scenario = load_scenario(point.scenario, point.overrides, seed=point.seed)
+        structure = configuration_structure(scenario)
+        if structure not in built:
+            MakeRunDiagram(scenario)
+            built.add(structure)
+    return len(built)
 
 
 def run_status(metrics) -> str:
@@ -378,6 +439,15 @@ class CampaignResult:
     timings: dict = dc.field(default_factory=dict)
     # The table of one row per point (the campaign's first in ``columns``).
     main: str = ""
+    # The points whose run raised or whose worker died each time Dask tried
+    # it (failure.json, no metrics.json): name -> the failure's line; and the
+    # names of those that diverged (a result, not a failure). Points skipped
+    # as finished before included.
+    failed: dict = dc.field(default_factory=dict)
+    diverged: list = dc.field(default_factory=list)
+    # Distinct structures built by the pre-check, and its time (s).
+    checked: int = 0
+    check_s: float = 0.0
 
     @property
     def rows(self) -> list:
@@ -442,17 +512,29 @@ def run_campaign(campaign: Campaign, out_dir, *, workers=None, scheduler=None, p
     Ctrl-C, from what finished)."""
     out = Path(out_dir)
     runs = out / campaign.runs_folder
-    runs.mkdir(parents=True, exist_ok=True)
-    resolved = campaign.resolved()
-    if resolved:
-        (out / f"{campaign.name}.yaml").write_text(yaml.safe_dump(resolved, sort_keys=False))
     points = campaign.points()
     names = [p.name for p in points]
     if len(set(names)) != len(names):
         raise ValueError(f"{campaign.name}: two points share a name")
     todo = [(p, runs / p.name) for p in points if finished_metrics(runs / p.name) is None]
-    batch = run_points(todo, workers=workers, scheduler=scheduler, progress=progress,
-                       points_per_task=points_per_task, ensemble=ensemble)
+    # Every configuration still to run is checked before the first runs (and
+    # before anything is written): a bad one stops the campaign in one line
+    # instead of failing run after run on the workers.
+    started, interrupted = time.perf_counter(), False
+    try:
+        checked = check_configurations([p for p, _ in todo])
+    except KeyboardInterrupt:
+        # Ctrl-C while checking: nothing runs; the tables and report are
+        # still written, from the runs finished before.
+        checked, interrupted = 0, True
+    check_s = time.perf_counter() - started
+    runs.mkdir(parents=True, exist_ok=True)
+    resolved = campaign.resolved()
+    if resolved:
+        (out / f"{campaign.name}.yaml").write_text(yaml.safe_dump(resolved, sort_keys=False))
+    batch = (PointsRun({}, True, 0, 0.0, 0.0) if interrupted else
+             run_points(todo, workers=workers, scheduler=scheduler, progress=progress,
+                        points_per_task=points_per_task, ensemble=ensemble))
     for point, run_dir in todo:
         failure = (batch.timings.get(point.name) or {}).get("failure")
         if failure and failure_message(run_dir) is None:  # e.g. its worker died each time
@@ -466,10 +548,15 @@ def run_campaign(campaign: Campaign, out_dir, *, workers=None, scheduler=None, p
     for table, first in campaign.columns.items():
         if table in tables:
             write_csv(tables[table], out / f"{table}.csv", first)
+    outcomes = {p.name: run_outcome(runs / p.name) for p in points}
     result = CampaignResult(tables, ran=len(batch.timings), skipped=len(points) - len(todo),
                             wall_s=batch.wall_s, startup_s=batch.startup_s,
                             workers=batch.workers, interrupted=batch.interrupted,
-                            timings=batch.timings, main=next(iter(campaign.columns), ""))
+                            timings=batch.timings, main=next(iter(campaign.columns), ""),
+                            failed={n: failure_message(runs / n) for n, o in outcomes.items()
+                                    if o == "failed"},
+                            diverged=[n for n, o in outcomes.items() if o == "diverged"],
+                            checked=checked, check_s=check_s)
     campaign.report(out, result)
     return result
 

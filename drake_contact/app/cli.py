@@ -9,10 +9,15 @@
     drake-contact sweep SWEEP --out DIR [--workers N | --scheduler ADDRESS] [--quick]
 
 Bad input exits with status 2 and one line naming the field and its allowed
-range; a diverged run exits with status 3 after writing its logs; Ctrl-C
-exits with 130 after writing the logs (and, for reproduce, a partial report);
-reproduce exits with 1 when a thesis result is not as expected (one that
-stops reproducing, or a documented deviation that now passes).
+range; a campaign (sweep, benchmark, faults, reproduce) first builds every
+distinct configuration it will run, so a bad one exits with 2 the same way
+before any run starts. A diverged run exits with status 3 after writing its
+logs; Ctrl-C exits with 130 after writing the logs (and, for reproduce, a
+partial report); sweep, benchmark and faults exit with 1 when a run failed
+(raised, or its worker died each time), unless --allow-failures (a diverged
+run is a result: exit 0); reproduce exits with 1 when a thesis result is not
+as expected (one that stops reproducing, a documented deviation that now
+passes, or one whose run failed or diverged).
 """
 
 import argparse
@@ -52,7 +57,7 @@ from drake_contact.app.campaign import DEFAULT_ENSEMBLE, MAX_ENSEMBLE  # noqa: E
 
 EXIT_BAD_INPUT = 2
 EXIT_DIVERGED = 3
-EXIT_FAILED = 1  # reproduce: a thesis result not as expected
+EXIT_FAILED = 1  # reproduce: a thesis result not as expected; a campaign: a run failed
 EXIT_INTERRUPTED = 130
 
 
@@ -143,13 +148,19 @@ def _build_parser():
 
 
 def _add_cluster_arguments(command):
-    """--workers N or --scheduler ADDRESS: where the Dask points run."""
+    """--workers N or --scheduler ADDRESS: where the Dask points run; and
+    --allow-failures (these are the campaigns that exit 1 on a failed run)."""
     where = command.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int,
                        help="worker processes of a local cluster (default: one per core)")
     where.add_argument("--scheduler", metavar="ADDRESS",
                        help="a running Dask scheduler, e.g. tcp://10.0.0.5:8786")
     _add_ensemble_argument(command)
+    command.add_argument("--allow-failures", action="store_true",
+                         help="exit 0 even when runs failed (raised, or their worker died each "
+                              "time it was tried); they are still counted and shown as failed. "
+                              "Default: exit 1. A diverged run is a result and never fails "
+                              "the command")
 
 
 def _add_ensemble_argument(command):
@@ -186,12 +197,14 @@ def _cmd_faults(args):
     print(_campaign_line(result))
     for safety in ("off", "on"):
         mine = [e for e in result.tables["faults"] if e["safety"] == safety]
-        runs = sum(e["runs"] - e["runs_failed"] for e in mine)
+        runs = sum(e["runs"] - e["runs_failed"] - e["runs_not_finished"] for e in mine)
+        failed = sum(e["runs_failed"] for e in mine)
         print(f"supervisor {safety:3s}: {sum(e['runs_past_limit'] for e in mine)}/{runs} runs "
               f"more than 10 % over the limit, {sum(e['runs_recovered'] for e in mine)} recovered "
-              f"tracking, {sum(e['runs_ended_safe'] for e in mine)} ended safe")
+              f"tracking, {sum(e['runs_ended_safe'] for e in mine)} ended safe"
+              + (f"; {failed} runs FAILED (not scored)" if failed else ""))
     print(f"wrote {args.out}/faults.md, faults.csv and runs.csv")
-    return EXIT_INTERRUPTED if result.interrupted else 0
+    return _campaign_exit(result, args)
 
 
 def _cmd_list(args):
@@ -322,7 +335,7 @@ def _cmd_sweep(args):
     for line in summary_lines(sweep, result):
         print(line)
     print(f"wrote {args.out}/results.csv and {args.out}/sweep.html")
-    return EXIT_INTERRUPTED if result.interrupted else 0
+    return _campaign_exit(result, args)
 
 
 def _cmd_benchmark(args):
@@ -341,11 +354,16 @@ def _cmd_benchmark(args):
                            workers=args.workers, scheduler=args.scheduler,
                            progress=points_progress(), ensemble=args.ensemble)
     overall = sorted((e for e in result.tables["leaderboard"] if e["task"] == "all"),
-                     key=lambda e: e["rank"])
+                     key=lambda e: (e["rank"] is None, e["rank"] or e["runs_failed"]))
     print(_campaign_line(result))
     for e in overall:
-        print(f"{e['rank']:3d}. {e['contender']:18s} mean task rank {e['mean_rank']:.2f}, "
-              f"lost contact in {e['runs_losing_contact']}/{e['runs']} runs, median force RMSE "
+        rank = "  -." if e["rank"] is None else f"{e['rank']:3d}."
+        print(f"{rank} {e['contender']:18s} "
+              + (f"FAILED {e['runs_failed']}/{e['runs']} runs, not ranked; "
+                 if e["runs_failed"] else f"mean task rank {e['mean_rank']:.2f}, ")
+              + f"lost contact in {e['runs_losing_contact']}/{e['runs']} runs, "
+              + (f"diverged in {e['runs_diverged']}, " if e["runs_diverged"] else "")
+              + "median force RMSE "
               + (f"{e['force_rmse_n_median']:.2f} N" if e['force_rmse_n_median'] is not None
                  else "-"))
     for e in sorted((e for e in result.tables.get("identifier_leaderboard", [])
@@ -356,12 +374,30 @@ def _cmd_benchmark(args):
               + (f"{e['stiffness_abs_error_pct_median']:.2f} %"
                  if e['stiffness_abs_error_pct_median'] is not None else "-"))
     print(f"wrote {args.out}/leaderboard.md, leaderboard.csv and leaderboard.html")
-    return EXIT_INTERRUPTED if result.interrupted else 0
+    return _campaign_exit(result, args)
 
 
 def _campaign_line(result) -> str:
     return (f"{result.ran + result.skipped} runs ({result.ran} now, {result.skipped} from "
-            f"before) in {result.startup_s + result.wall_s:.0f} s on {result.workers} workers")
+            f"before) in {result.startup_s + result.wall_s:.0f} s on {result.workers} workers, "
+            f"{result.checked} configurations built first in {result.check_s:.1f} s: "
+            f"{len(result.failed)} failed, {len(result.diverged)} diverged")
+
+
+def _campaign_exit(result, args) -> int:
+    """A campaign's exit status: 130 interrupted; 1 when a run failed (one
+    line on stderr names the first), unless --allow-failures; else 0 (a
+    diverged run is a result)."""
+    if result.interrupted:
+        return EXIT_INTERRUPTED
+    if not result.failed:
+        return 0
+    name, message = next(iter(result.failed.items()))
+    print(f"drake-contact: {len(result.failed)} of {result.ran + result.skipped} runs failed, "
+          f"first {name}: {message}"
+          + ("" if args.allow_failures else " (--allow-failures to exit 0 anyway)"),
+          file=sys.stderr)
+    return 0 if args.allow_failures else EXIT_FAILED
 
 
 def _check_out(path):

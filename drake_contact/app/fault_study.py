@@ -34,7 +34,7 @@ import yaml
 from drake_contact.app.benchmark import contender_names, contender_scenario
 from drake_contact.app.campaign import (
     DEFAULT_ENSEMBLE,
-    Campaign, CampaignResult, Point, finished_metrics, run_campaign)
+    Campaign, CampaignResult, Point, failure_message, finished_metrics, run_campaign)
 from drake_contact.errors import ScenarioError
 from drake_contact.faults import FAULT_KINDS, NULL_CASE
 
@@ -121,7 +121,9 @@ def score_run(run: Run, run_dir: Path) -> dict:
            "damping_n_s_per_m": run.damping, "seed": run.wall}
     metrics = finished_metrics(run_dir)
     if metrics is None:
-        return row | {"status": "failed"}
+        failure = failure_message(run_dir)
+        return row | {"status": "failed" if failure else "interrupted",
+                      "message": failure or "not run to the end"}
     fault = (metrics.get("faults") or [{}])[0]
     peaks = [fault.get("peak_force_during_n"), fault.get("peak_force_after_n")]
     peaks = [p for p in peaks if p is not None]
@@ -152,12 +154,17 @@ def aggregate(rows, contenders, cases) -> list:
             for safety in SAFETY:
                 runs = [r for r in rows if (r["fault"], r["contender"], r["safety"])
                         == (case, contender, safety)]
-                done = [r for r in runs if r["status"] != "failed"]
+                # Scored: the runs that finished (a diverged run is a result:
+                # past the limit); a failed or unfinished one has no scores.
+                done = [r for r in runs if r["status"] not in ("failed", "interrupted")]
                 recovered = [r["recovery_s"] for r in done if r.get("recovery_s") is not None]
                 peaks = [r["peak_force_n"] for r in done if r.get("peak_force_n") is not None]
                 table.append({
                     "fault": case, "contender": contender, "safety": safety,
-                    "runs": len(runs), "runs_failed": len(runs) - len(done),
+                    "runs": len(runs),
+                    "runs_failed": sum(r["status"] == "failed" for r in runs),
+                    "runs_diverged": sum(r["status"] == "diverged" for r in runs),
+                    "runs_not_finished": sum(r["status"] == "interrupted" for r in runs),
                     "peak_force_n_worst": max(peaks) if peaks else None,
                     "runs_past_limit": sum(bool(r["past_limit"]) for r in done),
                     "runs_recovered": len(recovered),
@@ -171,8 +178,12 @@ def aggregate(rows, contenders, cases) -> list:
 def _cell(e) -> str:
     peak = "-" if e["peak_force_n_worst"] is None else f"{e['peak_force_n_worst']:.0f}"
     rec = "-" if e["recovery_s_median"] is None else f"{e['recovery_s_median']:.2f}"
-    done = e["runs"] - e["runs_failed"]
+    done = e["runs"] - e["runs_failed"] - e["runs_not_finished"]
     text = f"{peak} N, rec {e['runs_recovered']}/{done} ({rec} s)"
+    if e["runs_failed"]:
+        text = f"**failed {e['runs_failed']}/{e['runs']}**, " + text
+    if e["runs_diverged"]:
+        text += f", {e['runs_diverged']} diverged"
     if e["runs_past_limit"]:
         text += f", **{e['runs_past_limit']} over**"
     if e["contact_losses"]:
@@ -193,7 +204,9 @@ def markdown(table, contenders, suite: Suite, wall_s=None) -> str:
         "the walls: the worst true force from the fault's start to the end, the runs whose "
         "tracking recovered (100 ms mean within 1 N of f_d for 0.5 s) and their median "
         "time from the fault's end, runs more than 10 % over the limit, contact losses, "
-        "supervisor stops, runs that did not end safe.", ""]
+        "supervisor stops, runs that did not end safe. A failed run (it raised, or its worker "
+        "died) has no scores and is counted as failed; a diverged one is scored (past the "
+        "limit) and counted apart.", ""]
     if wall_s is not None:
         lines += [f"Ran in {wall_s:.0f} s.", ""]
     header = "| fault | " + " | ".join(f"{c} off | {c} on" for c in contenders) + " |"
@@ -222,7 +235,8 @@ class FaultStudy(Campaign):
 
     name = "faults"
     columns = {"runs": ["contender", "safety", "fault", "wall", "status"],
-               "faults": ["fault", "contender", "safety", "runs"]}
+               "faults": ["fault", "contender", "safety", "runs", "runs_failed",
+                          "runs_diverged"]}
 
     def __init__(self, suite="standard", contenders=None):
         if suite not in SUITES:
