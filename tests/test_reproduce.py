@@ -37,10 +37,10 @@ def _table_rows(markdown, section="## Beyond the thesis"):
     start = next(i for i, line in enumerate(after) if line.startswith("| "))
     lines = []
     for line in after[start:]:
-        if not line.startswith("| "):
+        if not line.startswith("|"):
             break
         lines.append(line)
-    return [re.split(r"(?<!\\)\|", line.strip())[1:-1] for line in lines[1:]]
+    return [re.split(r"(?<!\\)\|", line.strip())[1:-1] for line in lines[2:]]
 
 
 @ON_QUICK_REPRODUCTION

@@ -712,9 +712,8 @@ def write_report(out_dir, rows, *, quick, status, claims=None, seeds=SEEDS,
     claim_header = thesis_claims.TABLE_COLUMNS + [f"seed {s}" for s in seeds] + ["verdict"]
     body += ["<table><tr>" + "".join(f"<th>{e(h)}</th>" for h in claim_header) + "</tr>"]
     for r in claims:
-        cls = ("missing" if r.reproduced is None else "deviation" if r.claim.calibration
-               else "pass" if r.reproduced and r.as_expected
-               else "deviation" if r.as_expected else "fail")
+        cls = ("missing" if r.reproduced is None else "fail" if not r.as_expected
+               else "deviation" if r.claim.calibration or r.claim.deviation else "pass")
         cells = thesis_claims.claim_cells(r.claim) + [
             thesis_claims.seed_values(r, s) for s in seeds]
         body.append("<tr>" + "".join(f"<td>{e(c)}</td>" for c in cells)
