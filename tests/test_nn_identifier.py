@@ -1,6 +1,8 @@
 """The 3-4-1 identifier network: gradient against finite differences,
 learning a linear environment, probing."""
 
+import dataclasses as dc
+
 import numpy as np
 
 from drake_contact.plant.arm import CalcSampledUpdate
@@ -324,3 +326,75 @@ def test_bad_readout_time_constant_names_the_field_and_the_range(nn, message):
     with pytest.raises(ScenarioError) as error:
         load_scenario({"identifiers": [{"name": "auto", "kind": "nn", "nn": nn}]})
     assert message in str(error.value)
+
+
+def test_sigmoid_output_layer_is_the_texts_network_and_its_gradient():
+    """The text's network (output_layer sigmoid): f_hat = S f(v . [1, f(h)]),
+    one step of eqs. 4.26-4.29 by hand, and the step against finite
+    differences of 1/2 (f - f_hat)^2."""
+    from drake_contact.identification.nn_identifier import (
+        SigmoidImpedanceNetwork, make_network)
+    config = NnIdentifierConfig(learning_rate=1e-4, output_layer="sigmoid", output_scale_n=40.0)
+    net = make_network(config)
+    assert type(net) is SigmoidImpedanceNetwork
+    w = net.initial_weights(5)
+    x, f = np.array([1.2e-3, 0.01, -0.4]), 21.0
+    W, v = w[:16].reshape(4, 4), w[16:]
+    sigma = lambda s: 2.0 / (1.0 + np.exp(-s)) - 1.0  # noqa: E731
+    u = np.concatenate([[1.0], np.array(config.input_scale) * x])
+    y = sigma(W @ u)
+    t = v[0] + v[1:] @ y
+    f_hat = 40.0 * sigma(t)
+    d = (f - f_hat) * 40.0 * (1 - sigma(t) ** 2) / 2                # e Gamma'(u_k) S
+    W_new = W + 1e-4 * np.outer(d * v[1:] * (1 - y ** 2) / 2, u)     # eq. 4.28
+    v_new = v + 1e-4 * d * np.concatenate([[1.0], y])                # eq. 4.29
+    new, estimate = net.train(w, x, f)
+    assert estimate == pytest.approx(f_hat, rel=1e-12)
+    np.testing.assert_allclose(new, np.concatenate([W_new.ravel(), v_new]), rtol=1e-12)
+    eps = 1e-6
+
+    def loss(weights):
+        return 0.5 * (f - net.forward(weights, x)[0]) ** 2
+    fd = np.array([(loss(w + eps * e) - loss(w - eps * e)) / (2 * eps) for e in np.eye(len(w))])
+    np.testing.assert_allclose((w - new) / 1e-4, fd, rtol=1e-5, atol=1e-7)
+    # The probes read the same output: K_e = f_hat(x*, 0, 0) / x*.
+    xs = config.probe[0]
+    u_probe = np.concatenate([[1.0], np.array(config.input_scale) * [xs, 0.0, 0.0]])
+    assert net.impedance(w)[2] == pytest.approx(
+        40.0 * sigma(v[0] + v[1:] @ sigma(W @ u_probe)) / xs, rel=1e-12)
+    # N environments: each bit for bit its own alone.
+    stack = make_network([config, dc.replace(config, learning_rate=2e-5)])
+    weights = np.stack([w, net.initial_weights(6)])
+    new_stack, _ = stack.train(weights, np.stack([x, 2 * x]), np.array([f, 15.0]))
+    alone = make_network(dc.replace(config, learning_rate=2e-5))
+    assert np.array_equal(new_stack[0], new)
+    assert np.array_equal(new_stack[1], alone.train(weights[1], 2 * x, 15.0)[0])
+
+
+def test_an_identifiers_seed_depends_on_the_run_and_its_key_not_its_place():
+    """Reordering the identifiers keeps each one's seed; the same seed_key
+    starts two identifiers alike; another run seed or name differs."""
+    from drake_contact.identification.identifiers import IdentifierConfig
+    nn, slow = IdentifierConfig(name="nn", kind="nn"), IdentifierConfig(name="nn_slow", kind="nn")
+    assert nn.seed(3) == IdentifierConfig(name="nn", kind="nn").seed(3)
+    assert len({nn.seed(3), nn.seed(4), slow.seed(3)}) == 3
+    shared = dc.replace(slow, seed_key="nn")
+    assert shared.seed(3) == nn.seed(3)
+    assert nn.factory_options(3)["seed"] == nn.seed(3)
+
+
+def test_reordering_the_identifiers_changes_no_identifiers_log():
+    """identify_styrofoam's networks (and RLSs) with the list reversed, alone
+    and in an ensemble: each identifier's estimate is its own, bit for bit."""
+    from drake_contact.scenario import load_scenario
+    from drake_contact.simulation import simulate_ensemble, simulate_scenario
+    scenario = load_scenario("identify_styrofoam", ["simulation.duration=8.6"])
+    reordered = dc.replace(scenario, identifiers=scenario.identifiers[::-1])
+    base = simulate_scenario(scenario).log
+    assert np.any(base["contact_info"][:, 0] >= 0)  # the identifiers ran
+    other_seed = dc.replace(reordered, simulation=dc.replace(reordered.simulation, seed=7))
+    for log in (simulate_scenario(reordered).log,
+                simulate_ensemble([reordered, other_seed])[0].log):
+        for config in scenario.identifiers:
+            assert np.array_equal(log[f"impedance_{config.name}"],
+                                  base[f"impedance_{config.name}"], equal_nan=True), config.name

@@ -45,6 +45,7 @@ Signals an identifier reads (``signals``):
 """
 
 import dataclasses as dc
+import zlib
 
 import numpy as np
 from scipy import signal
@@ -99,14 +100,25 @@ class IdentifierConfig:
     # Options of a plug-in identifier (names to numbers, lists or strings),
     # handed to its factory; the built-ins take their section above.
     options: dict[str, float] = dc.field(default_factory=dict)
+    # What seeds its random initial state (the network's weights) with the
+    # run's seed; empty: its name. Identifiers with the same key start alike
+    # (the thesis's two learning rates of Fig 6.6), wherever they stand in
+    # the list and whichever environment of an ensemble they serve.
+    seed_key: str = ""
 
-    def factory_options(self, seed: int) -> dict:
+    def seed(self, run_seed: int) -> int:
+        """Its initial state's seed in a run seeded ``run_seed``: a function
+        of the run's seed and :attr:`seed_key` (or the name) alone."""
+        key = zlib.crc32((self.seed_key or self.name).encode())
+        return int(np.random.SeedSequence([run_seed, key]).generate_state(1)[0])
+
+    def factory_options(self, run_seed: int) -> dict:
         """The options mapping the identifier's factory gets: the built-ins'
-        typed section (the network also its weights' ``seed``), else
-        ``options``."""
+        typed section (the network also its weights' ``seed``, from
+        :meth:`seed`), else ``options``."""
         declared = identifier_declaration(self.kind)
         options = configured_options(self, declared)
-        return options | {"seed": seed} if declared.seeded else options
+        return options | {"seed": self.seed(run_seed)} if declared.seeded else options
 
     def validate(self, prefix):
         if not self.name.isidentifier():
@@ -124,6 +136,9 @@ class IdentifierConfig:
         if self.chain_model not in CHAIN_MODELS:
             raise ScenarioError(f"{prefix}.chain_model = '{self.chain_model}' is unknown: choose "
                                 f"one of {', '.join(CHAIN_MODELS)}")
+        if self.seed_key and not self.seed_key.isidentifier():
+            raise ScenarioError(f"{prefix}.seed_key = '{self.seed_key}' is not a valid key: "
+                                "use letters, digits and underscores, or leave it empty")
         if len(self.figures) > 2 or not all(
                 all(part.isdigit() for part in str(f).split(".")) for f in self.figures):
             raise ScenarioError(f"{prefix}.figures = {self.figures} is out of range: at most 2 "
@@ -321,8 +336,7 @@ def _make_identifier(scenarios, index):
     when its plug-in declares ``ensemble``, else :func:`_copies`."""
     configs = [s.identifiers[index] for s in scenarios]
     kind, prefix = configs[0].kind, f"identifiers[{index}]"
-    options = [c.factory_options(s.simulation.seed * 1000 + index)
-               for c, s in zip(configs, scenarios)]
+    options = [c.factory_options(s.simulation.seed) for c, s in zip(configs, scenarios)]
     if len(scenarios) == 1:
         return MakeIdentifier(kind, options[0], prefix=prefix)
     if identifier_declaration(kind, f"{prefix}.kind").ensemble:

@@ -99,7 +99,7 @@ from drake_contact.arm_axis import check_switches
 from drake_contact.identification.stacked import at, constants, every, products, together
 
 HIDDEN = 4
-OUTPUT_LAYERS = ("linear", "appendix_e")
+OUTPUT_LAYERS = ("linear", "sigmoid", "appendix_e")
 NORMALIZATIONS = ("fixed", "running")
 READOUTS = ("probe", "operating_point", "jacobian")
 
@@ -120,10 +120,11 @@ class NnIdentifierConfig:
     force_offset: bool = False
     # Standard deviation of the seeded initial weights.
     initial_weight_std: float = 0.3
-    # Output layer: linear, f_hat = S (v . [1, f(h)]) (ours, the default), or
-    # appendix_e, f_hat = S f(v . [1, h]) with the update of the text's
-    # network, as Appendix E codes its controller's network (see
-    # AppendixEImpedanceNetwork).
+    # Output layer: linear, f_hat = S (v . [1, f(h)]) (ours, the default);
+    # sigmoid, f_hat = S f(v . [1, f(h)]), the text's network (sections 4.5
+    # and 5.2; see SigmoidImpedanceNetwork); or appendix_e,
+    # f_hat = S f(v . [1, h]) with the update of the text's network, as
+    # Appendix E codes its controller's network (see AppendixEImpedanceNetwork).
     output_layer: str = "linear"
     # Input and output scales: fixed (input_scale, output_scale_n: the thesis)
     # or running (ours: the largest |x_i| and |f - f_s| since the switch, at
@@ -567,11 +568,59 @@ class AppendixEImpedanceNetwork(ImpedanceNetwork):
         return (f_xva - f_xv) / self._acc, (f_xv - f_x) / self._vs, f_x / self._xs
 
 
+class SigmoidImpedanceNetwork(ImpedanceNetwork):
+    """The text's network (section 5.2: "the process ... is same as that of
+    the neural network controller explained in Chapter 4.5"): the output
+    neuron is a bipolar sigmoid of the hidden *activations*, scaled to S,
+    and one back-propagation step of eqs. 4.26-4.29 on E = 1/2 (f - f_hat)^2:
+
+        t = v . [1, f(h)],   f_hat = S f(t)
+        d = e S f'(t),       f'(t) = (1 - f(t)^2) / 2
+        W += eta outer(d v_1: f'(h), [1, u])     (v before its step)
+        v += eta d [1, f(h)]
+
+    The thesis gives no output range; the output cannot leave (-S, S), so S
+    must hold the wall's force with room: see ``output_scale_n`` of the
+    scenarios that use it.
+    """
+
+    def _output(self, weights, hidden):
+        """S f(v . [1, hidden]) for one environment's or N's hidden layer."""
+        t = weights[self._v0] + self._rowdot(weights[self._v1], hidden)
+        return self._S * (2.0 / (1.0 + np.exp(-t)) - 1.0)
+
+    def _forward(self, weights, x0, x1, x2):
+        self._pre_activations(weights, x0, x1, x2)
+        self._f(self._pre, self._hidden)
+        return self._output(weights, self._hidden)
+
+    def _train(self, weights, x0, x1, x2, f, out):
+        f_hat = self._forward(weights, x0, x1, x2)
+        q = f_hat / self._S
+        d = (f - f_hat) * self._S * 0.5 * (1.0 - q * q)
+        hidden = self._hidden
+        back = d * weights[self._v1] * 0.5 * (1.0 - hidden * hidden)
+        outer = back[..., :, None] * self._u1_row
+        out[self._w_part] = weights[self._w_part] + (self._eta_matrix * outer).reshape(
+            self._lead + (self._SPLIT,))
+        out[self._v_part] = weights[self._v_part] + self._eta * d * self._h1
+        return f_hat
+
+    def _impedance(self, weights):
+        self._probe_layers(weights)
+        self._f(self._probe_pre, self._probe_hidden)
+        f_x, f_xv, f_xva = (self._output(weights, h) for h in self._probe_hidden_rows)
+        return (f_xva - f_xv) / self._acc, (f_xv - f_x) / self._vs, f_x / self._xs
+
+
 def make_network(config: NnIdentifierConfig | Sequence[NnIdentifierConfig]) -> ImpedanceNetwork:
     """The network for the configs' ``output_layer`` (one config, or one per
     environment sharing it)."""
-    if _configs(config)[0].output_layer == "appendix_e":
+    layer = _configs(config)[0].output_layer
+    if layer == "appendix_e":
         return AppendixEImpedanceNetwork(config)
+    if layer == "sigmoid":
+        return SigmoidImpedanceNetwork(config)
     return ImpedanceNetwork(config)
 
 
