@@ -33,9 +33,14 @@ def test_variant_differs_from_the_base_only_where_appendix_e_does(material):
     variant = load_scenario(f"identify_{material}_appendix_e")
     networks = [i for i, config in enumerate(base.identifiers) if config.kind == "nn"]
     assert networks
+    # The thesis's networks (nn, nn_slow) are the text's with S = 40 N in the
+    # base; the code's output neuron is +-20 N.
+    thesis = [i for i in networks if base.identifiers[i].seed_key == "thesis_nn"]
+    assert thesis
     expected = (["controller.hybrid.contact_threshold_n", "description",
                  "force_sensor.noise_scale"]
-                + [f"identifiers[{i}].nn.output_layer" for i in networks])
+                + [f"identifiers[{i}].nn.output_layer" for i in networks]
+                + [f"identifiers[{i}].nn.output_scale_n" for i in thesis])
     assert sorted(_differences(dc.asdict(base), dc.asdict(variant))) == sorted(expected)
     assert variant.controller.hybrid.contact_threshold_n == 0.8
     assert not variant.controller.hybrid.friction_compensation
@@ -50,7 +55,7 @@ def test_output_layer_is_validated_and_linear_by_default():
     assert type(make_network(NnIdentifierConfig(output_layer="appendix_e"))) is \
         AppendixEImpedanceNetwork
     with pytest.raises(ScenarioError, match=r"identifiers\[0\]\.nn\.output_layer"):
-        NnIdentifierConfig(output_layer="sigmoid").validate("identifiers[0].nn")
+        NnIdentifierConfig(output_layer="tanh").validate("identifiers[0].nn")
 
 
 def _sigma(s):
