@@ -3,11 +3,14 @@
 
 Inputs u = (s_x xe, s_v xe', s_a xe'') (scaled so their magnitudes match;
 styrofoam s_x = 1000, rubber 10000, s_v = 100), four bipolar-sigmoid hidden
-neurons f(h) = 2/(1 + e^-h) - 1 with biases, and a linear output scaled to
-newtons, f_hat = S (v . [1, f(h)]) (the thesis's output neuron is a sigmoid,
-as in its controller, section 5.2; one scaled to S = 20 N could not reach
-the 20-28 N the wall returns). Every 1 ms after the contact switch one
-gradient step on E = 1/2 (f - f_hat)^2 with learning rate eta (1e-4).
+neurons f(h) = 2/(1 + e^-h) - 1 with biases, and an output neuron scaled to
+newtons: the text's, a bipolar sigmoid as in its controller (section 5.2,
+``output_layer: sigmoid``, f_hat = S f(v . [1, f(h)])), which the thesis
+scenarios' networks use with S = 40 N (the thesis gives no range; 20 N,
+its controller's, could not reach the 20-28 N the wall returns), or a
+linear one (ours, the default: f_hat = S (v . [1, f(h)])). Every 1 ms after
+the contact switch one gradient step on E = 1/2 (f - f_hat)^2 with learning
+rate eta (1e-4).
 
 Explicit coefficients by probing with "dummy" inputs at (x*, v*, a*):
 
@@ -26,8 +29,8 @@ network sees only one resting operating point after the ~100 ms switch
 transient, so K_e comes out right only near that point: probe x* at the
 displacement it rests at (2 mm styrofoam, 0.3 mm rubber here), as the thesis
 says ("dummy values close to learned values"). B_e and M_e rest on the
-transient alone and depend on the initial weights. The thesis's form is the
-default.
+transient alone and depend on the initial weights, which are seeded by the
+run's seed and the identifier's ``seed_key`` (its name by default).
 
 Self-scaling (ours; ``normalization: running``): no per-material
 constant. Each input is divided by the largest magnitude it has taken since
