@@ -365,3 +365,28 @@ def test_rls_robust_is_within_5_percent_one_second_after_contact(stiffness, damp
     assert result.status == "completed"
     metrics = compute_metrics(scenario, result.log, 0.0)
     assert abs(metrics["identification_error_1s_rls_robust"]["stiffness"]) < 0.05
+
+
+def test_thesis_signals_are_line_675s():
+    """``signals: thesis`` (identify_styrofoam's rls and networks): the 120 Hz
+    force, the estimated pose, the unfiltered velocity and the 35 Hz
+    acceleration (line 675: "a 35Hz Butterworth low-pass filter is used only
+    for the noisy acceleration signal"); ``filtered`` (ours) takes the
+    35 Hz velocity."""
+    from drake_contact import load_scenario
+    from drake_contact.identification.identifiers import AddIdentifiers
+    from pydrake.systems.framework import DiagramBuilder
+    scenario = load_scenario("identify_styrofoam")
+    assert {c.name for c in scenario.identifiers if c.signals == "thesis"} == {
+        "rls", "nn", "nn_slow"}
+    builder = DiagramBuilder()
+    identifiers = AddIdentifiers(builder, scenario)
+    inner = {s.get_name(): s for s in identifiers.GetSystems()}
+    expected = {"identifier_rls": ("force", "tip_pose", "tip_velocity_raw", "tip_acceleration"),
+                "identifier_rls_offset": ("force", "tip_pose", "tip_velocity",
+                                          "tip_acceleration")}
+    for name, sources in expected.items():
+        for port, source in zip(("force", "tip_pose", "tip_velocity", "tip_acceleration"),
+                                sources):
+            connected = _source_of(identifiers, inner[name].GetInputPort(port))
+            assert connected == source, (name, port, connected)

@@ -13,8 +13,15 @@ estimated displacement since the switch.
 
 Signals an identifier reads (``signals``):
 
-- ``filtered`` (the thesis): the 120 Hz filtered force; xe from the
-  estimated tip position; xe', xe'' from the estimator (35 Hz filter).
+- ``thesis`` (line 675 of the thesis: "measured force f, robot manipulator
+  position x, velocity and acceleration are used; a 35Hz Butterworth
+  low-pass filter is used only for the noisy acceleration signal"): the
+  120 Hz filtered force, the DSP's measured force (line 673; Appendix E's
+  f / x, ``Kcm = uff/x1e``, divides the same filtered force ``uff``, and the
+  thesis sets its RLS beside that f / x); xe from the estimated tip
+  position; xe' the unfiltered backward difference; xe'' through the 35 Hz
+  filter.
+- ``filtered`` (ours): as ``thesis``, with xe' through the 35 Hz filter too.
 - ``raw``: the unfiltered force and the unfiltered differences (Fig 6.3).
 - ``matched`` (ours, not the thesis's): the same signals, each passed through
   the filters the others went through, so that all four see one and the
@@ -65,7 +72,7 @@ from drake_contact.plugins import (
     MakeIdentifier, check_configuration, configured_options, declare, identifier_declaration,
     installed_identifiers)
 
-SIGNALS = ("filtered", "raw", "matched", "raw_matched")
+SIGNALS = ("thesis", "filtered", "raw", "matched", "raw_matched")
 CHAIN_MODELS = ("bilinear", "zoh")
 
 
@@ -78,7 +85,8 @@ class IdentifierConfig:
     # An installed identifier (drake_contact.plugins.installed_identifiers():
     # the built-ins rls and nn, configured by the sections below, or a plug-in).
     kind: str = "rls"
-    # Signals it reads: filtered (the thesis: 120 Hz force, 35 Hz velocity
+    # Signals it reads: thesis (line 675: 120 Hz force, unfiltered velocity,
+    # 35 Hz acceleration), filtered (ours: 120 Hz force, 35 Hz velocity
     # and acceleration), raw (unfiltered force and differences, Fig 6.3) or
     # matched (all four through one common filter; see the module doc) or
     # raw_matched (the unfiltered force, the kinematics through the sensor's
@@ -249,6 +257,8 @@ def _add_filters(builder, filters, inputs, chain_model="bilinear"):
 
 #: Which measured signal feeds each identifier input, per ``signals``.
 _SOURCES = {
+    "thesis": {"force": "force", "tip_pose": "tip_pose", "tip_velocity": "tip_velocity_raw",
+               "tip_acceleration": "tip_acceleration"},
     "filtered": {"force": "force", "tip_pose": "tip_pose", "tip_velocity": "tip_velocity",
                  "tip_acceleration": "tip_acceleration"},
     "raw": {"force": "force_raw", "tip_pose": "tip_pose", "tip_velocity": "tip_velocity_raw",
