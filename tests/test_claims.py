@@ -141,7 +141,8 @@ def test_a_claim_is_reproduced_only_on_every_seed_and_a_deviation_only_while_it_
         tmp_path):
     store = {("identify_styrofoam", s): _fake_identification(tmp_path, s, k, 7000.0)
              for s, k in enumerate([7100.0, 7300.0, 7500.0])}
-    r3 = next(c for c in CLAIMS if c.id == "R3")
+    # R3 as a plain claim (it is a calibration row: an RLS's K_e against f / x).
+    r3 = claims.dc.replace(next(c for c in CLAIMS if c.id == "R3"), calibration="")
     assert not r3.deviation
     (row,) = score_claims(tmp_path, (0, 1, 2), _metrics_reader(store), claims=[r3])
     assert row.holds == {0: True, 1: True, 2: False}  # 7500 is 7.1 % off
@@ -172,6 +173,7 @@ def test_claims_csv_has_one_line_per_claim_and_seed(tmp_path):
     assert len(lines) == 2 * len(CLAIMS)
     r3 = [line for line in lines if line["id"] == "R3"]
     assert [line["holds"] for line in r3] == ["True", "True"]
-    assert r3[0]["values"] == "k_e=7000; fx_n_per_m=7000" and r3[0]["verdict"] == "reproduced"
+    assert r3[0]["values"] == "k_e=7000; fx_n_per_m=7000"
+    assert r3[0]["verdict"] == "calibration (holds)" and r3[0]["cause"] == claims.RLS_TIED
     n5 = next(line for line in lines if line["id"] == "N5")
     assert n5["verdict"] == "not run" and n5["cause"].startswith("nn K_e reads")

@@ -298,25 +298,32 @@ def _rls_settles(run, seconds, lines, quote, figures, claim_id):
         lambda v: v["settled_s"] <= seconds * (1 + ABOUT))
 
 
-def _fx_reading(claim_id, run, lines, quote, figures, reading_n_per_m, calibration):
+def _fx_reading(claim_id, run, lines, quote, figures, reading_n_per_m, calibration="",
+                role=""):
     return ThesisClaim(
         claim_id, lines, figures, quote, f"{run}: f / x (stiffness_ratio)",
         f"f / x (filtered force over the displacement from the 5 N switch point, mean over "
         f"the run's last second) within {READING_TOLERANCE:.0%} of "
-        f"{reading_n_per_m / 1e3:g} kN/m",
+        f"{reading_n_per_m / 1e3:g} kN/m" + (f"; {role}" if role else ""),
         lambda s: _values(fx_n_per_m=stiffness_ratio(s, run)),
         lambda v: _near(v["fx_n_per_m"], reading_n_per_m, READING_TOLERANCE),
         calibration=calibration)
 
 
-def _k_matches_fx(claim_id, run, form, lines, quote, figures, tolerance, why):
+#: Why an RLS's K_e against f / x is a calibration row: with xe from the
+#: switch point and no offset, at rest its K_e is the least-squares f / x.
+RLS_TIED = ("tied to the fitted stiffness algebraically: with xe from the switch point and "
+            "no force offset, the RLS's K_e at rest is a least-squares f / x")
+
+
+def _k_matches_fx(claim_id, run, form, lines, quote, figures, tolerance, why, calibration=""):
     return ThesisClaim(
         claim_id, lines, figures, quote, f"{run}: {form}, f / x",
         f"{form} K_e (final) within {tolerance:.0%} of f / x (mean over the run's last second); "
         + why,
         lambda s: _values(k_e=impedance(s, run, form)["stiffness"],
                           fx_n_per_m=stiffness_ratio(s, run)),
-        lambda v: _near(v["k_e"], v["fx_n_per_m"], tolerance))
+        lambda v: _near(v["k_e"], v["fx_n_per_m"], tolerance), calibration=calibration)
 
 
 def _realistic_damping(claim_id, run, form, lines, quote, figures):
@@ -426,10 +433,10 @@ CLAIMS: list[ThesisClaim] = [
     _rls_settles(STYRO, 0.12, "689", "The results in Figure 6.1 show that the coefficients are "
                  "practically identified during first 0.12 seconds.", "6.1", "R1"),
     _fx_reading("R2", STYRO, "742", "the estimated values of K_e in (c) is 6.8K(N/m)", "6.2",
-                6.8e3, "the styrofoam wall's stiffness is fitted to this reading"),
+                6.8e3, calibration="the styrofoam wall's stiffness is fitted to this reading"),
     _k_matches_fx("R3", STYRO, "rls", "742, 770", "(c) is 6.8K(N/m) and (f) is 7.2K(N/m) which are "
                   "almost same (less than 6% difference)", "6.2", ALMOST_SAME,
-                  "the thesis's own tolerance"),
+                  "the thesis's own tolerance", calibration=RLS_TIED),
     _realistic_damping("R4", STYRO, "rls", "770", "The damping coefficient B_e seems "
                        "realistic.", "6.2"),
     _negative_mass("R5", STYRO, "rls", "770", "The value of the inertia coefficient M_e is "
@@ -446,13 +453,15 @@ CLAIMS: list[ThesisClaim] = [
     _k_matches_fx("R7", STYRO, "rls_raw", "777", "as far as the spring coefficient K_e is "
                   "concerned, the estimated value is realistic since it is always almost the "
                   "same as the calculated spring coefficient", "6.3", ALMOST_SAME,
-                  "\"almost the same\" as line 742's"),
+                  "\"almost the same\" as line 742's", calibration=RLS_TIED),
     _rls_settles(RUBBER, 0.05, "786", "The coefficients are practically identified during "
                  "first 0.05 seconds.", "6.4", "R8"),
     _fx_reading("R9", RUBBER, "786", "the values of K_e in (c) is 44K(N/m)", "6.5", 44e3,
-                "one of rubber's two readings (44 and 62 kN/m) is fitted, the other predicted"),
+                calibration="the rubber wall's stiffness is fitted to this reading (its other "
+                            "reading, 62 kN/m, is N9's prediction)"),
     _k_matches_fx("R10", RUBBER, "rls", "786", "(c) is 44K(N/m) and (f) is also 44K(N/m)",
-                  "6.5", ALMOST_SAME, "\"also 44K\" read with line 742's tolerance"),
+                  "6.5", ALMOST_SAME, "\"also 44K\" read with line 742's tolerance",
+                  calibration=RLS_TIED),
     _realistic_damping("R11", RUBBER, "rls", "786", "The damping coefficient B_e seems "
                        "realistic.", "6.5"),
     _negative_mass("R12", RUBBER, "rls", "786", "The value of the inertia coefficient M_e is "
@@ -478,7 +487,8 @@ CLAIMS: list[ThesisClaim] = [
         lambda s: _values(near_zero_s=error_near_zero_after(s, STYRO, "nn")),
         lambda v: _about(v["near_zero_s"], 0.6)),
     _fx_reading("N4", STYRO, "806", "calculated K_e from (c) is 6.7K(N/m)", "6.7", 6.7e3,
-                "predicted by the fit to R2's 6.8 kN/m (tolerance written before the fit)"),
+                role="a prediction of the wall fitted to R2's 6.8 kN/m (the tolerance written "
+                     "before the fit)"),
     _k_matches_fx("N5", STYRO, "nn", "806", "calculated K_e from (c) is 6.7K(N/m) and "
                   "estimated K_e from (f) is 6.6K(N/m)", "6.7", ALMOST_SAME,
                   "\"almost same\" as line 742's"),
@@ -497,7 +507,8 @@ CLAIMS: list[ThesisClaim] = [
     _nn_learns("N8", RUBBER, "844", "it also takes about 0.6sec to identify environment "
                "impedance", "6.9"),
     _fx_reading("N9", RUBBER, "844", "calculated K_e from (c) is 62K(N/m)", "6.9", 62e3,
-                "one of rubber's two readings (44 and 62 kN/m) is fitted, the other predicted"),
+                role="a prediction of the wall fitted to R9's 44 kN/m (the tolerance written "
+                     "before the fit)"),
     _k_matches_fx("N10", RUBBER, "nn", "844", "The identified spring coefficient K_e ... seems "
                   "realistic since calculated K_e from (c) is 62K(N/m) and estimated K_e from "
                   "(f) is 56K(N/m)", "6.9", 0.15,
