@@ -369,6 +369,8 @@ def simulate(diagram, loggers: SignalLoggers, *, progress=None, realtime_rate=0.
     except KeyboardInterrupt:
         status, message = "interrupted", f"interrupted at t = {context.get_time():.3f} s"
     except RuntimeError as e:
+        if not drake_raised(e):
+            raise
         status = "diverged"
         # Drake's own checks (e.g. a NaN reaching the plant's applied-force
         # input) say where; the time is the simulator's.
@@ -388,6 +390,18 @@ def _seeded_simulator(diagram, loggers, duration):
     SeedNoise(diagram, context)
     loggers.reserve(int(round(duration / CONTROL_PERIOD)) + 1)
     return simulator, context
+
+
+def drake_raised(error: RuntimeError) -> bool:
+    """Whether ``error`` is one of Drake's own (its C++ checks, e.g. a NaN
+    reaching the plant: a divergence) rather than raised by Python code the
+    simulator called back (a system's update, a plug-in's bug: a failure).
+    Drake's reach Python at the simulator's call in this module; a Python
+    callback's keep its own frames, deeper, in its traceback."""
+    tb = error.__traceback__
+    while tb is not None and tb.tb_next is not None:
+        tb = tb.tb_next
+    return tb is None or tb.tb_frame.f_code.co_filename == __file__
 
 
 def advance_in_chunks(simulator, context, loggers, duration):
@@ -482,6 +496,8 @@ def simulate_ensemble(scenarios, *, progress=None) -> list:
         for env in running:
             stopped[env] = ("interrupted", f"interrupted at t = {context.get_time():.3f} s")
     except RuntimeError as e:
+        if not drake_raised(e):
+            raise
         for env in running:
             stopped[env] = ("diverged", f"diverged at t = {context.get_time():.3f} s: "
                                         f"{str(e).splitlines()[0]}")

@@ -119,7 +119,7 @@ def test_a_contender_raising_on_one_wall_is_failed_unranked_and_exits_1(
     stdout, stderr = capsys.readouterr()
     runs = {(r["contender"], r["wall"]): r for r in _read(out / "runs.csv")}
     assert runs[("trips", "0")]["status"] == "failed"
-    assert "ValueError: tripped at t = 2." in runs[("trips", "0")]["message"]
+    assert "RuntimeError: tripped at t = 2." in runs[("trips", "0")]["message"]
     # On the stiff wall the plug-in held 20 N: by the runs alone it would
     # rank first, hybrid never touching the wall in 2.6 s.
     assert runs[("trips", "1")]["status"] == "completed"
@@ -136,7 +136,7 @@ def test_a_contender_raising_on_one_wall_is_failed_unranked_and_exits_1(
     assert "  -. trips              FAILED 1/2 runs, not ranked" in stdout
     assert stdout.index(". hybrid") < stdout.index(". trips")
     assert stderr.splitlines()[-1].startswith(
-        "drake-contact: 1 of 4 runs failed, first trips/hold/wall0_K5000_B30: ValueError")
+        "drake-contact: 1 of 4 runs failed, first trips/hold/wall0_K5000_B30: RuntimeError")
     # --allow-failures: the failed run is tried again, fails again, and is
     # still shown as failed; the command exits 0.
     assert main(args + ["--allow-failures"]) == 0

@@ -100,7 +100,9 @@ BROKEN = {
             def update(self, context, state):
                 x = self.GetInputPort("tip_pose_measured").Eval(context)[0]
                 if x > self.surface_x + self.trip_m:
-                    raise ValueError(f"tripped at t = {context.get_time():.3f} s")
+                    # A RuntimeError, as Drake's own errors are: still a
+                    # failure, not a divergence (simulation.drake_raised).
+                    raise RuntimeError(f"tripped at t = {context.get_time():.3f} s")
         def make(options):
             builder = DiagramBuilder()
             pusher = builder.AddSystem(push({"force": 20.0, "start_time": 2.1}))

@@ -104,3 +104,48 @@ def test_a_spooled_log_is_cut_at_the_divergence_like_an_in_memory_one(tmp_path):
     assert isinstance(spooled.log, simulation.SpooledLog)
     for key in in_memory.log:
         np.testing.assert_array_equal(spooled.log[key], in_memory.log[key], err_msg=key)
+
+
+def test_drakes_own_errors_are_divergence_and_a_callbacks_are_failures():
+    """simulation.drake_raised: a NaN torque reaching the plant raises in
+    Drake's C++ (a divergence); a RuntimeError raised by a Python system's
+    update is a failure, even though its type is the same."""
+    from pathlib import Path
+
+    import pytest
+    from pydrake.multibody.parsing import Parser
+    from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
+    from pydrake.systems.framework import LeafSystem
+    from pydrake.systems.primitives import ConstantVectorSource
+    from drake_contact.simulation import advance_in_chunks, drake_raised
+
+    class Loggers:
+        def drain(self, context):
+            pass
+
+    class Raises(LeafSystem):
+        def __init__(self):
+            super().__init__()
+            self.DeclareDiscreteState(1)
+            self.DeclarePeriodicDiscreteUpdateEvent(1e-3, 0.0, self.update)
+
+        def update(self, context, state):
+            raise RuntimeError("a bug in a callback")
+
+    builder = DiagramBuilder()
+    plant, _ = AddMultibodyPlantSceneGraph(builder, 1e-3)
+    Parser(plant).AddModels(str(Path(__file__).resolve().parents[1] / "models" / "arm3dof.urdf"))
+    plant.Finalize()
+    nan = builder.AddSystem(ConstantVectorSource(np.full(3, np.nan)))
+    builder.Connect(nan.get_output_port(), plant.get_actuation_input_port())
+    for diagram, expected in ((builder.Build(), True), (_one(Raises()), False)):
+        simulator = Simulator(diagram)
+        with pytest.raises(RuntimeError) as raised:
+            list(advance_in_chunks(simulator, simulator.get_context(), Loggers(), 0.01))
+        assert drake_raised(raised.value) is expected, raised.value
+
+
+def _one(system):
+    builder = DiagramBuilder()
+    builder.AddSystem(system)
+    return builder.Build()
