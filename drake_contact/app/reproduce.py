@@ -332,16 +332,7 @@ def _identification_score(runs, material, images, method):
 
 
 @_result("RLS, styrofoam", "6.1-6.3",
-         "K_e 7.2 k vs f/x 6.8 k (<6 % apart); settles within 0.12 s",
-         expected=False,
-         deviation="rls_matched ends 2.0, 6.2 and 4.9 % low on seeds 0, 1 and 2, never within "
-                   "5 % on seed 1 and not by the margin on seed 2: its M_e (-0.12, -0.36 and "
-                   "-0.01 kg against the true 0.01 kg) is loosely determined by the push's small "
-                   "accelerations after the switch, and its B_e is 12-14 % low on every seed, "
-                   "as a force lagging the matched kinematics by 1.7-2.0 ms would read "
-                   "(B_e - tau K_e; on identify_any's 140 runs its B_e error is -1.49 ms x K_e, "
-                   "while an offline fit of the same signals finds the chain model right: the "
-                   "cause is not isolated)")
+         "K_e 7.2 k vs f/x 6.8 k (<6 % apart); settles within 0.12 s")
 def _rls_styrofoam(runs):
     return _identification_score(
         runs, "styrofoam", ["fig6_1_identification.png", "fig6_3_identification.png"], "rls")
@@ -352,14 +343,25 @@ def _rls_rubber(runs):
     return _identification_score(runs, "rubber", ["fig6_4_identification.png"], "rls")
 
 
-@_result("NN identification, styrofoam", "6.6-6.8", "K_e 6.6 k vs f/x 6.7 k; about 0.6 s to learn")
+@_result("NN identification, styrofoam", "6.6-6.8", "K_e 6.6 k vs f/x 6.7 k; about 0.6 s to learn",
+         expected=False, deviation="nn_offset ends +17 to +20 % (styrofoam) and +17 to +38 % (rubber) high on "
+                   "seeds 0-2 on the calibrated walls: its probe sits where the tip rested on "
+                   "the old walls (2 mm, 0.3 mm), short of where it rests now (2.9, 0.46 mm). "
+                   "Ablation, seeds 0-2, probe at the rest: rubber ends -1.0 to +0.4 % (within "
+                   "10 % from 0.08 s on seed 1, only from 4.3 and 4.7 s on seeds 0 and 2), "
+                   "styrofoam -10.3 to -13.7 %: the probe is most of it on rubber, and on "
+                   "styrofoam the cause is not isolated. A probe per wall is tuning; the "
+                   "self-scaling nn_auto (identify_any) reads at the operating point")
 def _nn_styrofoam(runs):
     return _identification_score(
         runs, "styrofoam", ["fig6_7_identification.png", "fig6_6_identification.png",
                             "fig6_8_nn_output_error.png"], "nn")
 
 
-@_result("NN identification, rubber", "6.9", "K_e 56 k vs f/x 62 k; about 0.6 s")
+@_result("NN identification, rubber", "6.9", "K_e 56 k vs f/x 62 k; about 0.6 s",
+         expected=False, deviation="nn_offset on rubber: as on styrofoam (the row above), its "
+                                   "probe (0.3 mm) sits short of where the tip rests on the "
+                                   "calibrated wall (0.46 mm); the row above has the ablation")
 def _nn_rubber(runs):
     return _identification_score(runs, "rubber", ["fig6_9_identification.png"], "nn")
 
@@ -382,10 +384,11 @@ def _nn_tracking(runs, names, images):
 
 @_result("NN controller, styrofoam / rubber", "6.11, 6.16",
          "follows the 10/20 N square wave about 10 s in", expected=False,
-         deviation="nn_styrofoam follows, but not with the margin: its RMSE 10-20 s after contact "
-                   "is 1.37 to 1.40 N on every seed, within 0.15 N of the 1.5 N bound, and it "
-                   "adapts 10.5 s after contact on seed 1 (8 s on seeds 0 and 2); nn_rubber "
-                   "meets every bound")
+         deviation="nn_styrofoam's RMSE 10-20 s after contact is 1.40 to 1.44 N on seeds 0-2, "
+                   "within 0.15 N of the 1.5 N bound, and it adapts 18 s after contact on seed 1 "
+                   "(8 and 10.5 s on seeds 0 and 2); nn_rubber meets every bound. Cause not "
+                   "isolated (at 70957cd, on the uncalibrated wall, 1.37 to 1.40 N and 8 to "
+                   "10.5 s)")
 def _nn_square(runs):
     return _nn_tracking(runs, ["nn_styrofoam", "nn_rubber"],
                         ["fig6_11_force_tracking.png", "fig6_16_force_tracking.png"])
