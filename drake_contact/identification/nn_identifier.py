@@ -526,51 +526,6 @@ class ImpedanceNetwork:
                          for seed, c in zip(seeds, self.configs)])
 
 
-class AppendixEImpedanceNetwork(ImpedanceNetwork):
-    """The network with the output layer of Appendix E's code (its
-    controller's network; section 5.2 says the identifier's works the same
-    way): the output neuron sums the hidden *pre-activations* h and is a
-    bipolar sigmoid scaled to S (the code's ``st1 = 40/(1+exp(-t1)) - 20``,
-    S = 20 N), while the update uses the activations f(h) as the text's
-    network would:
-
-        t = v . [1, h],   f_hat = S f(t)
-        d = e S f'(t),    f'(t) = (1 - f(t)^2) / 2
-        W += eta outer(d v_1: f'(h), [1, u])     (v before its step)
-        v += eta d [1, f(h)]
-
-    The output cannot leave (-S, S): a wall force beyond S is learnt only
-    as saturation.
-    """
-
-    def _forward(self, weights, x0, x1, x2):
-        self._pre_activations(weights, x0, x1, x2)
-        t = weights[self._v0] + self._rowdot(weights[self._v1], self._pre)
-        self._f(self._pre.copy(), self._hidden)
-        return self._S * (2.0 / (1.0 + np.exp(-t)) - 1.0)
-
-    def _train(self, weights, x0, x1, x2, f, out):
-        f_hat = self._forward(weights, x0, x1, x2)
-        S, one = self._S, self._one
-        q = f_hat / S
-        d = (f - f_hat) * S * 0.5 * (1.0 - q * q)
-        v1 = weights[self._v1]
-        hidden = self._hidden
-        back = d * v1 * 0.5 * (1.0 - hidden * hidden)
-        outer = back[..., :, None] * self._u1_row
-        out[self._w_part] = weights[self._w_part] + (self._eta_matrix * outer).reshape(
-            self._lead + (self._SPLIT,))
-        out[self._v_part] = weights[self._v_part] + self._eta * d * self._h1
-        return f_hat
-
-    def _impedance(self, weights):
-        self._probe_layers(weights)
-        v0, v1, S = weights[self._v0], weights[self._v1], self._S
-        f_x, f_xv, f_xva = (S * (2.0 / (1.0 + np.exp(-(v0 + self._rowdot(v1, pre)))) - 1.0)
-                            for pre in self._probe_rows)
-        return (f_xva - f_xv) / self._acc, (f_xv - f_x) / self._vs, f_x / self._xs
-
-
 class SigmoidImpedanceNetwork(ImpedanceNetwork):
     """The text's network (section 5.2: "the process ... is same as that of
     the neural network controller explained in Chapter 4.5"): the output
@@ -587,15 +542,24 @@ class SigmoidImpedanceNetwork(ImpedanceNetwork):
     scenarios that use it.
     """
 
-    def _output(self, weights, hidden):
-        """S f(v . [1, hidden]) for one environment's or N's hidden layer."""
-        t = weights[self._v0] + self._rowdot(weights[self._v1], hidden)
+    def _summed(self):
+        """What the output neuron sums: the hidden activations f(h)."""
+        return self._hidden
+
+    def _probes_summed(self):
+        """The same for the three probes (their f(h), one row each)."""
+        self._f(self._probe_pre, self._probe_hidden)
+        return self._probe_hidden_rows
+
+    def _output(self, weights, summed):
+        """S f(v . [1, summed]) for one environment's or N's layer."""
+        t = weights[self._v0] + self._rowdot(weights[self._v1], summed)
         return self._S * (2.0 / (1.0 + np.exp(-t)) - 1.0)
 
     def _forward(self, weights, x0, x1, x2):
         self._pre_activations(weights, x0, x1, x2)
-        self._f(self._pre, self._hidden)
-        return self._output(weights, self._hidden)
+        self._f(self._pre.copy(), self._hidden)
+        return self._output(weights, self._summed())
 
     def _train(self, weights, x0, x1, x2, f, out):
         f_hat = self._forward(weights, x0, x1, x2)
@@ -611,9 +575,32 @@ class SigmoidImpedanceNetwork(ImpedanceNetwork):
 
     def _impedance(self, weights):
         self._probe_layers(weights)
-        self._f(self._probe_pre, self._probe_hidden)
-        f_x, f_xv, f_xva = (self._output(weights, h) for h in self._probe_hidden_rows)
+        f_x, f_xv, f_xva = (self._output(weights, layer) for layer in self._probes_summed())
         return (f_xva - f_xv) / self._acc, (f_xv - f_x) / self._vs, f_x / self._xs
+
+
+class AppendixEImpedanceNetwork(SigmoidImpedanceNetwork):
+    """The network with the output layer of Appendix E's code (its
+    controller's network; section 5.2 says the identifier's works the same
+    way): the output neuron sums the hidden *pre-activations* h and is a
+    bipolar sigmoid scaled to S (the code's ``st1 = 40/(1+exp(-t1)) - 20``,
+    S = 20 N), while the update uses the activations f(h) as the text's
+    network would (:class:`SigmoidImpedanceNetwork`'s step):
+
+        t = v . [1, h],   f_hat = S f(t)
+        d = e S f'(t),    f'(t) = (1 - f(t)^2) / 2
+        W += eta outer(d v_1: f'(h), [1, u])     (v before its step)
+        v += eta d [1, f(h)]
+
+    The output cannot leave (-S, S): a wall force beyond S is learnt only
+    as saturation.
+    """
+
+    def _summed(self):
+        return self._pre
+
+    def _probes_summed(self):
+        return self._probe_rows
 
 
 def make_network(config: NnIdentifierConfig | Sequence[NnIdentifierConfig]) -> ImpedanceNetwork:
