@@ -135,3 +135,26 @@ def test_bad_benchmark_input_exits_2_in_one_line(tmp_path):
         assert result.returncode == 2 and message in result.stderr
         assert len(result.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "o").exists()
+
+
+def test_an_identifier_with_a_failed_run_is_not_ranked():
+    """As the controllers' board: an identifier contender whose run failed
+    (no metrics: it raised, or its worker died) is shown ``failed k/n``,
+    after every ranked one, never ranked above one that completed."""
+    from drake_contact.app.benchmark import aggregate_identifiers, identifier_markdown
+
+    def row(name, wall, status, error):
+        return {"identifier": name, "task": "hold", "wall": wall, "status": status,
+                "stiffness_error_pct": error, "stiffness_error_1s_pct": error,
+                "damping_error_pct": None, "mass_kg": None,
+                "settling_s": None if error is None else 0.1}
+    # a is better where it ran, but one of its runs failed.
+    rows = [row("a", 0, "completed", 1.0), row("a", 1, "failed", None),
+            row("b", 0, "completed", 4.0), row("b", 1, "completed", 4.0)]
+    board = aggregate_identifiers(rows, ["a", "b"], ["hold"])
+    by = {(e["identifier"], e["task"]): e for e in board}
+    assert by["b", "hold"]["rank"] == 1 and by["a", "hold"]["rank"] is None
+    assert by["b", "all"]["rank"] == 1 and by["a", "all"]["rank"] is None
+    assert by["a", "all"]["runs_failed"] == 1 and by["b", "all"]["runs_failed"] == 0
+    text = identifier_markdown(board, ["hold"])
+    assert text.index("| 1 | b |") < text.index("| failed 1/2 | a |")

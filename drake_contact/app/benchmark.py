@@ -265,6 +265,7 @@ def aggregate_identifiers(rows, names, tasks) -> list:
             settled = [r["settling_s"] for r in runs if r["settling_s"] is not None]
             entries.append({
                 "identifier": name, "task": task, "runs": len(runs),
+                "runs_failed": sum(r["status"] == "failed" for r in runs),
                 "runs_settled_5pct": len(settled),
                 "stiffness_abs_error_pct_median": _median(k),
                 "stiffness_abs_error_pct_worst": _max(k),
@@ -274,20 +275,26 @@ def aggregate_identifiers(rows, names, tasks) -> list:
                      if r["damping_error_pct"] is not None]),
                 "mass_kg_median": _median([r["mass_kg"] for r in runs]),
                 "settling_s_median": _median(settled)})
-        board += _ranked(entries, lambda e: e["runs"] - e["runs_settled_5pct"],
-                         "stiffness_abs_error_pct_median")
+        board += _ranked_completed(entries, lambda e: e["runs"] - e["runs_settled_5pct"],
+                                   "stiffness_abs_error_pct_median")
     for name in names:
         mine = [e for e in board if e["identifier"] == name]
+        ranks = [e["rank"] for e in mine]
         board.append({"identifier": name, "task": "all",
-                      "mean_rank": float(np.mean([e["rank"] for e in mine])),
+                      "mean_rank": None if None in ranks else float(np.mean(ranks)),
                       "runs": sum(e["runs"] for e in mine),
+                      "runs_failed": sum(e["runs_failed"] for e in mine),
                       "runs_settled_5pct": sum(e["runs_settled_5pct"] for e in mine),
                       "stiffness_abs_error_pct_median": _median(
                           [abs(r["stiffness_error_pct"]) for r in rows
                            if r["identifier"] == name and r["stiffness_error_pct"] is not None])})
-    overall = sorted([e for e in board if e["task"] == "all"], key=lambda e: e["mean_rank"])
-    for rank, entry in enumerate(overall, start=1):
+    overall = [e for e in board if e["task"] == "all"]
+    ranked = sorted([e for e in overall if e["mean_rank"] is not None],
+                    key=lambda e: e["mean_rank"])
+    for rank, entry in enumerate(ranked, start=1):
         entry["rank"] = rank
+    for entry in overall:
+        entry.setdefault("rank", None)
     return board
 
 
@@ -295,11 +302,13 @@ def identifier_markdown(board, tasks) -> str:
     lines = ["", "# Identifiers", "",
              f"All side by side in one run per task and wall, under `{IDENTIFIER_CONTROLLER}`; "
              "true M_e is 0.01 kg. Ranked by the runs whose K_e estimate did not settle within "
-             "5 % of the truth, then by the median |K_e error| at the end.", "",
+             "5 % of the truth, then by the median |K_e error| at the end. An identifier with a "
+             "failed run (the run raised, or its worker died) is not ranked: `failed k/n`.", "",
              "| rank | identifier | mean task rank | K_e settled within 5 % | median abs K_e "
              "error at the end (%) |", "|---|---|---|---|---|"]
-    for e in sorted([e for e in board if e["task"] == "all"], key=lambda e: e["rank"]):
-        lines.append(f"| {e['rank']} | {e['identifier']} | {_fmt(e['mean_rank'])} | "
+    for e in sorted([e for e in board if e["task"] == "all"],
+                    key=lambda e: (e["rank"] is None, e["rank"] or e["runs_failed"])):
+        lines.append(f"| {_rank_cell(e)} | {e['identifier']} | {_fmt(e['mean_rank'])} | "
                      f"{e['runs_settled_5pct']}/{e['runs']} | "
                      f"{_fmt(e['stiffness_abs_error_pct_median'])} |")
     for task in tasks:
@@ -309,7 +318,7 @@ def identifier_markdown(board, tasks) -> str:
                   "|---|---|---|---|---|---|---|---|"]
         for e in [e for e in board if e["task"] == task]:
             lines.append(
-                f"| {e['rank']} | {e['identifier']} | {e['runs_settled_5pct']}/{e['runs']} | "
+                f"| {_rank_cell(e)} | {e['identifier']} | {e['runs_settled_5pct']}/{e['runs']} | "
                 f"{_fmt(e['stiffness_abs_error_pct_median'])} / "
                 f"{_fmt(e['stiffness_abs_error_pct_worst'])} | "
                 f"{_fmt(e['stiffness_abs_error_1s_pct_median'])} | "
@@ -566,8 +575,8 @@ class BenchmarkCampaign(Campaign):
                         "force_rmse_n_median"],
         "identifiers": ["identifier", "task", "wall", "stiffness_n_per_m", "damping_n_s_per_m",
                         "seed", "status"],
-        "identifier_leaderboard": ["rank", "identifier", "task", "runs", "runs_settled_5pct",
-                                   "mean_rank"],
+        "identifier_leaderboard": ["rank", "identifier", "task", "runs", "runs_failed",
+                                   "runs_settled_5pct", "mean_rank"],
     }
 
     def __init__(self, suite="standard", contenders=None, identifiers=None):
