@@ -631,6 +631,16 @@ def summary_line(rows) -> str:
             + (f", {missing} not run" if missing else ""))
 
 
+def _html_table(header, rows) -> str:
+    """An HTML table: ``header``'s cells, then per row (cells, the verdict's
+    CSS class, the verdict) with the verdict last, coloured by its class."""
+    e = html.escape
+    return ("<table><tr>" + "".join(f"<th>{e(h)}</th>" for h in header) + "</tr>"
+            + "".join("<tr>" + "".join(f"<td>{e(c)}</td>" for c in cells)
+                      + f"<td class='{cls}'>{e(verdict)}</td></tr>"
+                      for cells, cls, verdict in rows) + "</table>")
+
+
 def write_report(out_dir, rows, *, quick, status, claims=None, seeds=SEEDS,
                  interrupted=False, wall_s=None) -> Path:
     """Writes ``report.md`` and ``report.html`` (the thesis's claims first,
@@ -712,30 +722,22 @@ def write_report(out_dir, rows, *, quick, status, claims=None, seeds=SEEDS,
     e = html.escape
     body = [f"<h1>{e(title)}</h1>", f"<p>{e(summary)}</p>", f"<p>{e(mode)}</p>",
             "<h2>The thesis's claims</h2>", f"<p>{e(claims_rule)}</p>"]
-    claim_header = thesis_claims.TABLE_COLUMNS + [f"seed {s}" for s in seeds] + ["verdict"]
-    body += ["<table><tr>" + "".join(f"<th>{e(h)}</th>" for h in claim_header) + "</tr>"]
-    for r in claims:
-        cls = ("missing" if r.reproduced is None else "fail" if not r.as_expected
-               else "deviation" if r.claim.calibration or r.claim.deviation else "pass")
-        cells = thesis_claims.claim_cells(r.claim) + [
-            thesis_claims.seed_values(r, s) for s in seeds]
-        body.append("<tr>" + "".join(f"<td>{e(c)}</td>" for c in cells)
-                    + f"<td class='{cls}'>{e(r.verdict)}</td></tr>")
-    body.append("</table>")
+    body.append(_html_table(
+        thesis_claims.TABLE_COLUMNS + [f"seed {s}" for s in seeds] + ["verdict"],
+        [(thesis_claims.claim_cells(r.claim) + [thesis_claims.seed_values(r, s) for s in seeds],
+          "missing" if r.reproduced is None else "fail" if not r.as_expected
+          else "deviation" if r.claim.calibration or r.claim.deviation else "pass", r.verdict)
+         for r in claims]))
     if claim_deviations:
         body.append("<h3>Causes and calibration</h3><ul>" + "".join(
             f"<li>{e(r.claim.id)} (line {e(r.claim.lines)}): "
             f"{e(r.claim.deviation or r.claim.calibration)}.</li>" for r in claim_deviations)
             + "</ul>")
     body += ["<h2>Beyond the thesis</h2>", f"<p>{e(rule)}</p>"]
-    body += ["<table><tr>" + "".join(f"<th>{e(h)}</th>" for h in header) + "</tr>"]
-    for r in rows:
-        cls = ("missing" if r.passed is None else "pass" if r.passed and r.expected
-               else "deviation" if r.as_expected else "fail")
-        cells = [r.experiment, r.figures, r.thesis, r.measured, r.truth, r.tolerance]
-        body.append("<tr>" + "".join(f"<td>{e(c)}</td>" for c in cells)
-                    + f"<td class='{cls}'>{r.verdict()}</td></tr>")
-    body.append("</table>")
+    body.append(_html_table(header, [
+        ([r.experiment, r.figures, r.thesis, r.measured, r.truth, r.tolerance],
+         "missing" if r.passed is None else "pass" if r.passed and r.expected
+         else "deviation" if r.as_expected else "fail", r.verdict()) for r in rows]))
     if deviations:
         body.append("<h2>Documented deviations</h2><ul>" + "".join(
             f"<li>{e(r.experiment)} (Fig {e(r.figures)}): {e(r.deviation)}.</li>"
