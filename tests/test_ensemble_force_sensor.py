@@ -23,10 +23,11 @@ MIXED = [
     {},
     {"noise_scale": 0.0, "offset_n": -2.0, "offset_drift_n_per_s": 0.37, "adc_bits": 10,
      "calibration_matrix": [[1.0, 0.02, -0.01], [0.03, 0.98, 0.0], [0.0, 0.01, 1.01]]},
-    {"adc_full_scale": [5.0, 5.0, 0.5], "dac_glitch_n": -0.7, "dac_glitch_duration_s": 2 / 12000,
+    {"adc_full_scale": [5.0, 5.0, 0.5], "dac_glitch_n": -0.7, "dac_ripple_n": 0.0,
+     "dac_glitch_duration_s": 2 / 12000,
      "analog_cutoff_hz": 200.0, "output_bandwidth_hz": 800.0, "output_scale_n_per_v": 123.0},
     {"noise_std": [1.5, 0.2, 0.05], "noise_scale": 2.0, "offset_n": 0.0,
-     "dac_glitch_n": 3.0, "dac_glitch_duration_s": 1 / 12000},
+     "dac_glitch_n": 3.0, "dac_ripple_n": -1.1, "dac_glitch_duration_s": 1 / 12000},
 ]
 # Structures (the same for every environment of an ensemble): today's; two
 # ADC samples in some frames; a slow ADC whose glitch lasts over frames, on

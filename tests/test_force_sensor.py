@@ -62,7 +62,10 @@ class Reference:
                 q = np.round(w / lsb) * lsb
                 self.held = (np.array(c.calibration_matrix) @ q)[0] / c.output_scale_n_per_v
                 self.glitch_left = max(1, round(c.dac_glitch_duration_s * c.fine_rate_hz))
+            every = round(c.fine_rate_hz / c.adc_rate_hz)
             dac = self.held + (c.dac_glitch_n / c.output_scale_n_per_v if self.glitch_left else 0)
+            dac += (c.noise_scale * c.dac_ripple_n / c.output_scale_n_per_v
+                    * np.sin(2 * np.pi * (self.tick % every) / every))
             self.glitch_left = max(self.glitch_left - 1, 0)
             out.append(self.Co @ self.xo)
             self.xo = self.Ao @ self.xo + self.Bo * dac
@@ -117,7 +120,8 @@ class FirstWrittenSensor(ForceSensor):
             glitch_left = max(adc_ticks[-1] + self._glitch_ticks - N, 0)
         else:
             glitch_left = max(glitch_left - N, 0)
-        dac += glitch
+        ticks = (first_tick + np.arange(N)) % self._adc_every
+        dac += glitch + self._ripple_v[0] * np.sin(2.0 * np.pi * ticks / self._adc_every)
         frame = self._out_F @ xo0 + self._out_G @ dac
         xo_end = self._out_E @ xo0 + self._out_H @ dac
         x_end = self._gauge_P[N] @ x0 + self._gauge_L[N] @ noise + self._gauge_U[N] @ u
@@ -160,7 +164,8 @@ def run_states(sensor, frames, seed, t_start, bad_inputs=False):
     {"adc_full_scale": [5.0, 5.0, 0.5]},  # clipping
     {"adc_full_scale": [5.0, 5.0, 0.5],
      "calibration_matrix": [[0.9, 0.1, 0.3], [0, 1, 0], [0, 0, 1]]},
-    {"dac_glitch_duration_s": 5 / 12000},
+    {"dac_glitch_duration_s": 5 / 12000, "dac_glitch_n": 1.5},
+    {"dac_glitch_n": 1.5, "dac_ripple_n": 0.0},
     {"fine_rate_hz": 24000.0, "dac_glitch_duration_s": 3 / 24000},
     {"adc_rate_hz": 2000.0},  # two ADC ticks per frame
     {"adc_rate_hz": 100.0, "dac_glitch_duration_s": 30 / 12000},  # glitch over frames
@@ -218,7 +223,7 @@ def test_adc_matches_the_numpy_adc_on_both_sides_of_every_quantization_step(fiel
 
 
 def test_static_force_reads_through_sign_offset_and_12_bit_quantization():
-    config, sensor, context = make_sensor(dac_glitch_n=0.0, offset_n=3.0)
+    config, sensor, context = make_sensor(dac_glitch_n=0.0, dac_ripple_n=0.0, offset_n=3.0)
     for n in range(100):
         v, _ = step(sensor, context, n, [-20.0, 0.0, 0.0])
     lsb = 2 * 500.0 / 4096
@@ -228,7 +233,7 @@ def test_static_force_reads_through_sign_offset_and_12_bit_quantization():
 
 
 def test_calibration_cross_talk_leaks_fy_into_fx():
-    config, sensor, context = make_sensor(dac_glitch_n=0.0, offset_n=0.0,
+    config, sensor, context = make_sensor(dac_glitch_n=0.0, dac_ripple_n=0.0, offset_n=0.0,
                                           calibration_matrix=[[1, 0.1, 0], [0, 1, 0], [0, 0, 1]])
     for n in range(100):
         v, _ = step(sensor, context, n, [0.0, 50.0, 0.0])
@@ -238,7 +243,7 @@ def test_calibration_cross_talk_leaks_fy_into_fx():
 def test_dac_holds_each_sample_for_25_fine_ticks():
     # A ramp in force: the output (glitch and reconstruction filter off-ish)
     # changes in steps 1/480 s apart.
-    config, sensor, context = make_sensor(dac_glitch_n=0.0, offset_n=0.0,
+    config, sensor, context = make_sensor(dac_glitch_n=0.0, dac_ripple_n=0.0, offset_n=0.0,
                                           output_bandwidth_hz=5000.0, adc_bits=24)
     frames = []
     for n in range(30):
@@ -252,7 +257,8 @@ def test_dac_holds_each_sample_for_25_fine_ticks():
 
 
 def test_gauge_noise_has_the_configured_level():
-    config, sensor, context = make_sensor(dac_glitch_n=0.0, offset_n=0.0, adc_bits=24,
+    config, sensor, context = make_sensor(dac_glitch_n=0.0, dac_ripple_n=0.0, offset_n=0.0,
+                                          adc_bits=24,
                                           noise_std=[0.75, 0.0, 0.0])
     rng = np.random.default_rng(1)
     volts = [step(sensor, context, n, [0.0, 0.0, 0.0], noise=rng.normal(size=3 * TICKS))[0]

@@ -50,8 +50,9 @@ def test_sensor_figures_are_written(spectrum):
 
 def step_response():
     """20 N step of the true normal force at t = 0.1 s through sensor + DSP
-    (noise, glitch and offset off)."""
-    config = ForceSensorConfig(noise_std=[0.0, 0.0, 0.0], dac_glitch_n=0.0, offset_n=0.0)
+    (noise, ripple, glitch and offset off)."""
+    config = ForceSensorConfig(noise_std=[0.0, 0.0, 0.0], dac_glitch_n=0.0, dac_ripple_n=0.0,
+                               offset_n=0.0)
     builder = DiagramBuilder()
     sensor = AddForceSensor(builder, config)
     dsp = AddDspForceInput(builder, DspConfig(tare_window_s=0.05), config.fine_period, 12)
@@ -122,7 +123,8 @@ def sine_response(frequency_hz, output):
     """A 3 N sine at ``frequency_hz`` on 20 N through sensor + DSP (noise,
     glitch and offset off): (sample times, ``output``)."""
     from pydrake.systems.primitives import Adder, Sine
-    config = ForceSensorConfig(noise_std=[0.0, 0.0, 0.0], dac_glitch_n=0.0, offset_n=0.0)
+    config = ForceSensorConfig(noise_std=[0.0, 0.0, 0.0], dac_glitch_n=0.0, dac_ripple_n=0.0,
+                               offset_n=0.0)
     builder = DiagramBuilder()
     sensor = AddForceSensor(builder, config)
     dsp = AddDspForceInput(builder, DspConfig(tare_window_s=0.05), config.fine_period, 12)

@@ -10,20 +10,30 @@ reads only Fx):
    (decoupling; identity by default, cross-talk configurable) and adds the
    sensor's offset and its optional slow drift;
 3. a DAC holds the Fx value for 1/480 s (zero-order hold; analog output mode,
-   digital filter bypassed). Each DAC update also emits a short glitch (the
-   update strobe's digital feed-through, a standard DAC artefact), and the
-   analog output passes a reconstruction filter (2nd-order, 500 Hz).
+   digital filter bypassed). The D/A converting adds its noise around 480 Hz
+   (line 322): a ripple at the loop rate, phase-locked to the DAC update, and
+   optionally a short glitch at each update (the update strobe's digital
+   feed-through, off by default). The analog output passes a reconstruction
+   filter (2nd-order, 500 Hz).
 
 Everything analog runs on a fine clock (``fine_rate_hz``, a common multiple
 of 480 Hz and 1 kHz: 12 kHz by default), discretized exactly for inputs held
 over a fine tick. The model is advanced one 1 ms frame of 12 ticks per update
 (lifted, see ``filters.py``), and the 480 Hz ADC sample and DAC update happen
-on the tick where they fall. So the 480 Hz staircase, the glitch train and
-their aliasing when the DSP samples at 1 kHz come out of the model: no tone
-is added anywhere. Gauge noise comes from Drake's ``RandomSource`` (seeded by
-the scenario). The glitch's deterministic part makes the spectral line at
-480 Hz (its harmonics alias to multiples of 40 Hz at 1 kHz sampling); the
-held gauge noise makes the +-2 N seen at rest (Fig 4.4).
+on the tick where they fall. So the 480 Hz staircase and its aliasing when
+the DSP samples at 1 kHz come out of the model. Gauge noise comes from
+Drake's ``RandomSource`` (seeded by the scenario).
+
+The raw noise at rest, almost +-2 N (line 344), is mostly the ripple: the
+DSP's 120 Hz filter passes a 480 Hz ripple at about 0.05 but the gauge
+noise, which lies below 120 Hz, nearly whole. So the filtered force at rest
+stays under Appendix E's 0.8 N contact switch (line 1894) only if the
+gauge noise is small. The thesis gives the ripple's level and waveform
+nowhere; a sinusoid is the waveform without harmonics. A pulse train's
+harmonic at 960 Hz aliases to 40 Hz in the DSP's 1 kHz samples but not in
+the 190 Hz RC channel, and then the two channels' spectra below 120 Hz,
+which the thesis found "almost same" (line 322), differ (docs/modelling.md,
+"Force sensor").
 
 The output is a voltage, force / ``output_scale_n_per_v`` (200 N/V), with the
 sensor's sign: pushing the wall gives a negative Fx; the DSP flips it.
@@ -59,6 +69,11 @@ from drake_contact.plant.arm import CONTROL_PERIOD, RATIO_TOLERANCE
 from drake_contact.errors import ScenarioError
 from drake_contact.sensing.filters import butterworth_analog, discretize_analog
 
+# The DAC ripple's amplitude (N): the level at which the raw force's 99th
+# percentile at rest is 2 N over noise seeds 0-2 (claim S3 of
+# drake_contact/app/claims.py, a calibration row).
+RIPPLE_N = 2.25
+
 
 @dc.dataclass
 class ForceSensorConfig:
@@ -78,17 +93,24 @@ class ForceSensorConfig:
     calibration_matrix: list[list[float]] = dc.field(
         default_factory=lambda: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
     # Standard deviation of the gauge noise after the analog filter, per
-    # channel (N, N, N m): sets the +-2 N raw noise at rest (Fig 4.4).
-    noise_std: list[float] = dc.field(default_factory=lambda: [0.75, 0.75, 0.01])
-    # Multiplier of noise_std on every channel (1 = the +-2 N of Fig 4.4): one
-    # number to sweep the noise level with.
+    # channel (N, N, N m). Not in the thesis: with the ripple below it gives
+    # the +-2 N raw noise at rest (Fig 4.4) and a filtered force at rest under
+    # Appendix E's 0.8 N switch.
+    noise_std: list[float] = dc.field(default_factory=lambda: [0.1875, 0.1875, 0.0025])
+    # Multiplier of noise_std on every channel and of dac_ripple_n (1 = the
+    # +-2 N of Fig 4.4): one number to sweep the noise level with.
     noise_scale: float = 1.0
     # Sensor offset on Fx (N), removed by the DSP's tare, and its drift (N/s).
     offset_n: float = 3.0
     offset_drift_n_per_s: float = 0.0
+    # The DAC's ripple at the loop rate (N-equivalent amplitude at the DAC,
+    # before the output stage): a sinusoid phase-locked to the DAC update,
+    # zero at each update. Not in the thesis's numbers: its level gives the
+    # raw noise at rest of almost +-2 N (line 344) with the gauge noise.
+    dac_ripple_n: float = RIPPLE_N
     # DAC update glitch on the output (N-equivalent height, duration in s; the
-    # duration is rounded to whole fine ticks, at least one).
-    dac_glitch_n: float = 1.5
+    # duration is rounded to whole fine ticks, at least one). Off by default.
+    dac_glitch_n: float = 0.0
     dac_glitch_duration_s: float = 1.0 / 12000.0
     # Cut-off of the analog output stage (Hz): the DAC's reconstruction
     # filter, a 2nd-order Butterworth. Not in the thesis; 500 Hz passes the
@@ -124,7 +146,7 @@ class ForceSensorConfig:
             bad("noise_std", "must be 3 finite values >= 0")
         if not (np.isfinite(self.noise_scale) and self.noise_scale >= 0):
             bad("noise_scale", "must be >= 0")
-        for field in ("offset_n", "offset_drift_n_per_s", "dac_glitch_n"):
+        for field in ("offset_n", "offset_drift_n_per_s", "dac_glitch_n", "dac_ripple_n"):
             if not np.isfinite(getattr(self, field)):
                 bad(field, "must be finite")
         if not (self.dac_glitch_duration_s > 0):
@@ -249,6 +271,8 @@ class ForceSensor(LeafSystem):
         self._glitch_lengths = per_env(  # in fine ticks
             lambda c: max(1, round(c.dac_glitch_duration_s * c.fine_rate_hz))).astype(int)
         self._glitch_v = per_env(lambda c: c.dac_glitch_n / c.output_scale_n_per_v)
+        self._ripple_v = per_env(
+            lambda c: c.noise_scale * c.dac_ripple_n / c.output_scale_n_per_v)
         self._offset = per_env(lambda c: c.offset_n)
         self._drift = per_env(lambda c: c.offset_drift_n_per_s)
         self._drifts = any(c.offset_drift_n_per_s != 0 for c in configs)
@@ -356,7 +380,11 @@ class ForceSensor(LeafSystem):
         on = tick < np.minimum(glitch_left, T)[:, None]
         for i in adc_ticks:
             on |= (tick >= i) & (tick < i + self._glitch_lengths[:, None])
-        glitch = np.where(on, self._glitch_v[:, None], 0.0).reshape(-1)
+        glitch = np.where(on, self._glitch_v[:, None], 0.0)
+        # The ripple over the frame's ticks: sin of the tick's phase in the
+        # ADC loop (0 at each DAC update), scaled per environment.
+        ripple = np.sin(2.0 * np.pi * ((phase + tick) % self._adc_every) / self._adc_every)
+        glitch = (glitch + self._ripple_v[:, None] * ripple).reshape(-1)
         glitch.flags.writeable = False  # shared by every update of the plan
         if adc_ticks:
             glitch_left = np.maximum(adc_ticks[-1] + self._glitch_lengths - T, 0)
