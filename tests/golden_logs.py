@@ -271,9 +271,9 @@ def record(scenario_name: str) -> Path:
     if scenario_name in FIXED_END_S:
         end_s = FIXED_END_S[scenario_name]
     else:
-        probe = simulate_log(scenario_name, 9.0)
+        probe = simulate_log(scenario_name, 12.0)
         switch = probe["t"][int(np.argmax(probe["mode"] > 0))]
-        assert probe["mode"].max() > 0, f"{scenario_name}: no contact switch by 9 s"
+        assert probe["mode"].max() > 0, f"{scenario_name}: no contact switch by 12 s"
         end_s = round(float(switch) + AFTER_SWITCH_S, 3)
     log = select(simulate_log(scenario_name, end_s), end_s)
     GOLDEN_DIR.mkdir(exist_ok=True)
