@@ -344,14 +344,15 @@ def _rls_rubber(runs):
 
 
 @_result("NN identification, styrofoam", "6.6-6.8", "K_e 6.6 k vs f/x 6.7 k; about 0.6 s to learn",
-         expected=False, deviation="nn_offset ends +17 to +20 % (styrofoam) and +17 to +38 % (rubber) high on "
+         expected=False,
+         deviation="nn_offset ends +30 to +31 % (styrofoam) and +19 to +38 % (rubber) high on "
                    "seeds 0-2 on the calibrated walls: its probe sits where the tip rested on "
                    "the old walls (2 mm, 0.3 mm), short of where it rests now (2.9, 0.46 mm). "
-                   "Ablation, seeds 0-2, probe at the rest: rubber ends -1.0 to +0.4 % (within "
-                   "10 % from 0.08 s on seed 1, only from 4.3 and 4.7 s on seeds 0 and 2), "
-                   "styrofoam -10.3 to -13.7 %: the probe is most of it on rubber, and on "
-                   "styrofoam the cause is not isolated. A probe per wall is tuning; the "
-                   "self-scaling nn_auto (identify_any) reads at the operating point")
+                   "Ablation, seeds 0-2, probe at the rest (2.9 and 0.46 mm): styrofoam ends "
+                   "-2.6 to -3.9 % (within 10 % from 0.17-0.18 s), rubber -1.0 to -1.2 % (from "
+                   "0.074-0.082 s), and both rows pass: the probe is the cause. A probe per wall "
+                   "is tuning; the self-scaling nn_auto (identify_any) reads at the operating "
+                   "point")
 def _nn_styrofoam(runs):
     return _identification_score(
         runs, "styrofoam", ["fig6_7_identification.png", "fig6_6_identification.png",
@@ -384,11 +385,11 @@ def _nn_tracking(runs, names, images):
 
 @_result("NN controller, styrofoam / rubber", "6.11, 6.16",
          "follows the 10/20 N square wave about 10 s in", expected=False,
-         deviation="nn_styrofoam's RMSE 10-20 s after contact is 1.40 to 1.44 N on seeds 0-2, "
-                   "within 0.15 N of the 1.5 N bound, and it adapts 18 s after contact on seed 1 "
-                   "(8 and 10.5 s on seeds 0 and 2); nn_rubber meets every bound. Cause not "
-                   "isolated (at 70957cd, on the uncalibrated wall, 1.37 to 1.40 N and 8 to "
-                   "10.5 s)")
+         deviation="nn_styrofoam's RMSE 10-20 s after contact is 1.49 to 1.52 N on seeds 0-2, "
+                   "at the 1.5 N bound, and it adapts 18, 15.5 and 18 s after contact; nn_rubber "
+                   "meets every bound. Cause not isolated (at 70957cd, on the uncalibrated wall "
+                   "and the gauge-dominated noise, 1.37 to 1.40 N and 8 to 10.5 s; at a9a607c, "
+                   "on the wall calibrated for that noise, 1.40 to 1.44 N and 8 to 18 s)")
 def _nn_square(runs):
     return _nn_tracking(runs, ["nn_styrofoam", "nn_rubber"],
                         ["fig6_11_force_tracking.png", "fig6_16_force_tracking.png"])
