@@ -165,7 +165,7 @@ def identify_run(tmp_path_factory):
     from drake_contact.app.runner import run
     from drake_contact.scenario import load_scenario
 
-    scenario = load_scenario("identify_styrofoam", duration=9.0)
+    scenario = load_scenario("identify_styrofoam", duration=10.0)
     out = tmp_path_factory.mktemp("identify_styrofoam")
     result = run(scenario, out)
     assert result.status == "completed"

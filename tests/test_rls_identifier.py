@@ -360,7 +360,7 @@ def test_rls_robust_is_within_5_percent_one_second_after_contact(stiffness, damp
     from drake_contact.scoring.metrics import compute_metrics
     scenario = load_scenario("identify_any", [
         f"environment.stiffness={stiffness}", f"environment.damping={damping}",
-        f"simulation.seed={seed}", "simulation.duration=9.5"])
+        f"simulation.seed={seed}", "simulation.duration=10.4"])
     result = simulate_scenario(scenario)
     assert result.status == "completed"
     metrics = compute_metrics(scenario, result.log, 0.0)
