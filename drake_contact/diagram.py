@@ -58,6 +58,7 @@ from drake_contact.scenario import Scenario
 from drake_contact.sensing.dsp import AddDspForceInput
 from drake_contact.sensing.estimator import AddKinematicEstimator
 from drake_contact.sensing.force_sensor import AddForceSensor
+from drake_contact.structure import check_ensemble_structure
 
 
 @dc.dataclass(frozen=True)
@@ -601,8 +602,12 @@ def MakeEnsembleDiagram(scenarios) -> ContactStation:
     k its size in ``signals``).
 
     Each environment has its own scenario (wall, noise seed, gains, faults,
-    ...); they must share a structure (the plant step, the controller and
-    what its plug-in's law switches on). A role whose system serves N
+    ...); they must share a structure
+    (:func:`drake_contact.structure.ensemble_structure`: the plant step, the
+    controller and what its plug-in switches on, the identifiers, the safety
+    supervisor, the number of faults, ...), checked before anything is
+    built: a ScenarioError names the first environment and field that
+    differ. A role whose system serves N
     environments at once (the force sensor, the force reference, and a
     controller whose plug-in declares ``ensemble``) is one system; any other
     is one system per environment (named ``<name>@<i>``), Drake's C++
@@ -614,7 +619,7 @@ def MakeEnsembleDiagram(scenarios) -> ContactStation:
         raise ScenarioError("an ensemble needs at least one scenario")
     for scenario in scenarios:
         scenario.validate()
-    _check_structure(scenarios)
+    check_ensemble_structure(scenarios)
     count = len(scenarios)
     # Every role serves all environments at once, except around faults,
     # which chain per environment between the roles.
@@ -645,30 +650,22 @@ def MakeEnsembleDiagram(scenarios) -> ContactStation:
     return station
 
 
-def _check_structure(scenarios):
-    """Raises ScenarioError unless the scenarios can share one station: the
-    same plant step and controller."""
-    first = scenarios[0]
-    for i, scenario in enumerate(scenarios[1:], 1):
-        for field, value, base in (
-                ("arm.time_step", scenario.arm.time_step, first.arm.time_step),
-                ("controller.name", scenario.controller.name, first.controller.name)):
-            if value != base:
-                raise ScenarioError(
-                    f"{field} = {value!r} in environment {i} is out of range: an ensemble's "
-                    f"environments share it ({base!r} in environment 0)")
-
-
 def _export_envs(builder, exports):
     """Exports each signal of the environments' ``exports`` (per
     environment {name: (port, meaning, log_as)}) as one port carrying all of
     them; returns the station's ``signals``."""
     signals = {}
+    for i, exported in enumerate(exports[1:], start=1):
+        # The structure key should make this impossible; a plug-in whose
+        # options change its ports without declaring its structure cannot
+        # lose an environment's signal silently either.
+        if set(exported) != set(exports[0]):
+            name = sorted(set(exported) ^ set(exports[0]))[0]
+            raise ScenarioError(f"the ensemble's environments differ in the signal '{name}' "
+                                f"(environment {i} and environment 0): they must share a "
+                                "structure")
     for name, (port, meaning, log_as) in exports[0].items():
-        ports = [exported[name][0] for exported in exports if name in exported]
-        if len(ports) != len(exports):
-            raise ScenarioError(f"the ensemble's environments differ in the signal '{name}': "
-                                "they must share a structure")
+        ports = [exported[name][0] for exported in exports]
         if len(ports) > 1:
             port = builder.combined(ports, f"{name}_envs")
         builder.ExportOutput(port, name)

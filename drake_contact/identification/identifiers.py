@@ -64,7 +64,9 @@ from drake_contact.blocks import AddSubdiagram
 from drake_contact.errors import ScenarioError
 from drake_contact.measured import MEASUREMENTS
 from drake_contact.plant.arm import CONTROL_PERIOD
+from drake_contact.structure import check_ensemble_structure, identifiers_structure
 from drake_contact.sensing.filters import butterworth_digital, digital_filter_system
+from drake_contact.identification import nn_identifier, rls_identifier
 from drake_contact.identification.nn_identifier import NnIdentifier, NnIdentifierConfig
 from drake_contact.identification.rls_identifier import RlsConfig, RlsIdentifier
 from drake_contact.options import config_from_options
@@ -270,7 +272,20 @@ _SOURCES["matched"] = _SOURCES["filtered"]
 _SOURCES["raw_matched"] = _SOURCES["raw"]
 
 
-@declare(sections=("rls",), ensemble=True)
+def _rls_structure(options: dict) -> dict:
+    """What an RLS section ``options`` switches on, as ``rls.<field>``."""
+    config = config_from_options(RlsConfig, options, "identifiers.rls")
+    return {f"rls.{field}": value for field, value in rls_identifier.structure(config).items()}
+
+
+def _nn_structure(options: dict) -> dict:
+    """What a network section ``options`` switches on, as ``nn.<field>``."""
+    options = {k: v for k, v in options.items() if k != "seed"}
+    config = config_from_options(NnIdentifierConfig, options, "identifiers.nn")
+    return {f"nn.{field}": value for field, value in nn_identifier.structure(config).items()}
+
+
+@declare(sections=("rls",), ensemble=True, structure=_rls_structure)
 def rls(options):
     """The built-in RLS identifier (registered as ``rls``); options: the
     fields of :class:`RlsConfig`, or a list of N such mappings (one system
@@ -280,7 +295,7 @@ def rls(options):
     return RlsIdentifier(configs if isinstance(options, list) else configs[0])
 
 
-@declare(sections=("nn",), seeded=True, ensemble=True)
+@declare(sections=("nn",), seeded=True, ensemble=True, structure=_nn_structure)
 def nn(options):
     """The built-in neural identifier (registered as ``nn``); options: the
     fields of :class:`NnIdentifierConfig` and ``seed`` (its initial weights),
@@ -294,20 +309,6 @@ def nn(options):
     if isinstance(options, list):
         return NnIdentifier(configs, seeds)
     return NnIdentifier(configs[0], seeds[0])
-
-
-def _check_shared(scenarios):
-    """Raises ScenarioError (one line) unless the environments' scenarios
-    have the same identifiers: names, kinds, signals and chain models."""
-    def layout(scenario):
-        return [(c.name, c.kind, c.signals, c.chain_model) for c in scenario.identifiers]
-    first = layout(scenarios[0])
-    for i, scenario in enumerate(scenarios[1:], start=1):
-        if layout(scenario) != first:
-            raise ScenarioError(
-                f"identifiers: environment {i} has {layout(scenario)} (name, kind, signals, "
-                f"chain_model) and environment 0 {first}: the environments must share a "
-                "structure")
 
 
 def _copies(systems, name):
@@ -375,7 +376,7 @@ def AddIdentifiers(builder: DiagramBuilder, scenario, *, name="identifiers"):
     scenarios = list(scenario) if isinstance(scenario, (list, tuple)) else [scenario]
     if not scenarios:
         raise ScenarioError("identifiers: no scenarios (one per environment, at least one)")
-    _check_shared(scenarios)
+    check_ensemble_structure(scenarios, identifiers_structure)
     first = scenarios[0]
 
     def build(builder):
