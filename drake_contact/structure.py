@@ -4,7 +4,7 @@
 ``(field, value)`` pairs in a fixed order, of everything that decides the
 station's systems and ports: the plant step, the controller and the options
 its plug-in switches on, the identifiers and theirs, the safety supervisor,
-the number of faults, the friction model, the force sensor's sampling, the
+the signal of each fault, the friction model, the force sensor's sampling, the
 DSP's probe channel and the force reference's probe. Two scenarios with one
 key build the same station up to numbers (walls, gains, seeds, noise
 levels, fault times and sizes), so they can share an ensemble
@@ -45,8 +45,10 @@ def ensemble_structure(scenario) -> tuple:
     """The structure key of ``scenario``: ``((field, value), ...)``,
     hashable, equal for two scenarios exactly when they can share an
     ensemble. Fields are named as in the scenario (``arm.time_step``,
-    ``safety.enabled``, ``controller.hybrid.law``); ``faults`` is their
-    number and ``identifiers`` their (name, kind, signals, chain_model)."""
+    ``safety.enabled``, ``controller.hybrid.law``); ``faults`` is the signal
+    each fault corrupts, in order (so their number too: the station logs
+    ``fault_active`` with one column per fault), and ``identifiers`` their
+    (name, kind, signals, chain_model)."""
     from drake_contact.sensing.force_sensor import _STRUCTURE as SENSOR_STRUCTURE
 
     controller = scenario.controller
@@ -58,12 +60,11 @@ def ensemble_structure(scenario) -> tuple:
     reference = scenario.force_reference
     probe = reference.probe_amplitude_n != 0
     key += [("safety.enabled", bool(scenario.safety.enabled)),
-            ("faults", len(scenario.faults)),
+            ("faults", tuple(f.signal for f in scenario.faults)),
             ("joint_friction.model", scenario.joint_friction.model),
             *((f"force_sensor.{f}", getattr(scenario.force_sensor, f))
               for f in SENSOR_STRUCTURE),
-            ("dsp.anti_aliasing.mode", "probe" if scenario.dsp.anti_aliasing.mode == "probe"
-             else "off or in_loop"),
+            ("dsp.anti_aliasing.mode", scenario.dsp.anti_aliasing.mode),
             ("force_reference.probe_amplitude_n", "on" if probe else "off"),
             ("force_reference.probe_frequencies_hz",
              len(reference.probe_frequencies_hz) if probe else 0)]

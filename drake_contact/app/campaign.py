@@ -354,7 +354,7 @@ def ensemble_packs(points, size, workers=1) -> list:
     ensemble each: points whose scenarios share a structure
     (:func:`drake_contact.structure.ensemble_structure`: the plant step, the
     controller and what it switches on, the identifiers, the safety
-    supervisor, the number of faults, ...) and a duration (an ensemble runs
+    supervisor, the signal of each fault, ...) and a duration (an ensemble runs
     as long as its longest), in their order, at most ``size`` a pack, the packs of a group of even sizes and
     a whole number of them per worker where the group allows (so that
     every worker gets the same work); a pack would be smaller than

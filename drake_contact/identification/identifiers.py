@@ -56,11 +56,10 @@ import zlib
 
 import numpy as np
 from scipy import signal
-from pydrake.systems.framework import DiagramBuilder, PortDataType
-from pydrake.systems.primitives import Demultiplexer, Multiplexer
+from pydrake.systems.framework import DiagramBuilder
 
 from drake_contact.arm_axis import LinearSystemBank
-from drake_contact.blocks import AddSubdiagram
+from drake_contact.blocks import AddSubdiagram, EnvironmentCopies, system_ports
 from drake_contact.errors import ScenarioError
 from drake_contact.measured import MEASUREMENTS
 from drake_contact.plant.arm import CONTROL_PERIOD
@@ -311,40 +310,11 @@ def nn(options):
     return NnIdentifier(configs[0], seeds[0])
 
 
-def _copies(systems, name):
-    """N one-environment systems of one plug-in as one sub-diagram ``name``
-    with env-major ports: each input split by a Demultiplexer, each vector
-    output joined by a Multiplexer (for a plug-in that does not declare
-    ``ensemble``)."""
-    builder = DiagramBuilder()
-    count = len(systems)
-    systems = [builder.AddNamedSystem(f"{name}_{i}", s) for i, s in enumerate(systems)]
-    first = systems[0]
-    for p in range(first.num_input_ports()):
-        port = first.get_input_port(p)
-        split = builder.AddNamedSystem(f"{port.get_name()}_split",
-                                       Demultiplexer([port.size()] * count))
-        for i, system in enumerate(systems):
-            builder.Connect(split.get_output_port(i), system.get_input_port(p))
-        builder.ExportInput(split.get_input_port(), port.get_name())
-    for p in range(first.num_output_ports()):
-        port = first.get_output_port(p)
-        if port.get_data_type() != PortDataType.kVectorValued:
-            continue
-        join = builder.AddNamedSystem(f"{port.get_name()}_join",
-                                      Multiplexer([port.size()] * count))
-        for i, system in enumerate(systems):
-            builder.Connect(system.get_output_port(p), join.get_input_port(i))
-        builder.ExportOutput(join.get_output_port(), port.get_name())
-    diagram = builder.Build()
-    diagram.set_name(name)
-    return diagram
-
-
 def _make_identifier(scenarios, index):
     """The identifier system of entry ``index`` for the environments'
     ``scenarios``: one system, or with several environments one serving all
-    when its plug-in declares ``ensemble``, else :func:`_copies`."""
+    when its plug-in declares ``ensemble``, else
+    :class:`~drake_contact.blocks.EnvironmentCopies` of one per environment."""
     configs = [s.identifiers[index] for s in scenarios]
     kind, prefix = configs[0].kind, f"identifiers[{index}]"
     options = [c.factory_options(s.simulation.seed) for c, s in zip(configs, scenarios)]
@@ -352,8 +322,9 @@ def _make_identifier(scenarios, index):
         return MakeIdentifier(kind, options[0], prefix=prefix)
     if identifier_declaration(kind, f"{prefix}.kind").ensemble:
         return MakeIdentifier(kind, options, prefix=prefix, count=len(scenarios))
-    return _copies([MakeIdentifier(kind, o, prefix=prefix) for o in options],
-                   f"identifier_{configs[0].name}")
+    copies = [MakeIdentifier(kind, o, prefix=prefix) for o in options]
+    return EnvironmentCopies(f"identifier_{configs[0].name}", len(copies), lambda builder, i:
+                             system_ports(builder.AddSystem(copies[i])))
 
 
 def AddIdentifiers(builder: DiagramBuilder, scenario, *, name="identifiers"):
