@@ -14,6 +14,7 @@ return one system serving all N, every port env-major.
 
 import dataclasses as dc
 from collections.abc import Sequence
+from types import SimpleNamespace
 
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import Adder, ConstantVectorSource, Demultiplexer, Multiplexer
@@ -91,15 +92,18 @@ def _export_hybrid(builder, hybrid, configs):
 
 
 def _hybrid_structure(options: dict) -> dict:
-    """What the hybrid section ``options`` switches on, as ``hybrid.<field>``."""
-    config = config_from_options(HybridControllerConfig, options, "controller.hybrid")
+    """What the hybrid section ``options`` (checked when the scenario
+    loaded) switches on, as ``hybrid.<field>``: the switches read its fields
+    by name, without building a config (every environment's key is made
+    when an ensemble is built)."""
+    config = SimpleNamespace(**options)
     return {f"hybrid.{field}": value
             for field, value in hybrid_controller.structure(config).items()}
 
 
 def _nn_structure(options: dict) -> dict:
     """The hybrid part's switches and the compensator's (``nn.<switch>``)."""
-    config = config_from_options(NnCompensatorConfig, options["nn"], "controller.nn")
+    config = SimpleNamespace(**options["nn"])
     return _hybrid_structure(options["hybrid"]) | {
         f"nn.{switch}": value for switch, value in nn_compensator.structure(config).items()}
 

@@ -53,6 +53,7 @@ Signals an identifier reads (``signals``):
 
 import dataclasses as dc
 import zlib
+from types import SimpleNamespace
 
 import numpy as np
 from scipy import signal
@@ -272,15 +273,15 @@ _SOURCES["raw_matched"] = _SOURCES["raw"]
 
 
 def _rls_structure(options: dict) -> dict:
-    """What an RLS section ``options`` switches on, as ``rls.<field>``."""
-    config = config_from_options(RlsConfig, options, "identifiers.rls")
+    """What an RLS section ``options`` (checked when the scenario loaded)
+    switches on, as ``rls.<field>``."""
+    config = SimpleNamespace(**options)
     return {f"rls.{field}": value for field, value in rls_identifier.structure(config).items()}
 
 
 def _nn_structure(options: dict) -> dict:
     """What a network section ``options`` switches on, as ``nn.<field>``."""
-    options = {k: v for k, v in options.items() if k != "seed"}
-    config = config_from_options(NnIdentifierConfig, options, "identifiers.nn")
+    config = SimpleNamespace(**options)
     return {f"nn.{field}": value for field, value in nn_identifier.structure(config).items()}
 
 
