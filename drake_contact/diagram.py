@@ -173,16 +173,18 @@ def _faults_on(scenarios, signal) -> bool:
     return any(f.signal == signal for f in scenarios[0].faults)
 
 
-def _add_fault_chains(builder, scenarios, signal, source, size, clock, active, **kwargs):
+def _add_fault_chains(builder, scenarios, signal, source, size, clock, active, *,
+                      counts_per_revolution=None):
     """The faults on ``signal`` of every environment, after the output port
     ``source`` (environment-major, ``size`` per environment): one adapter
     (:func:`~drake_contact.blocks.AddEnvironments`) of each environment's
     chain, fed by ``clock``. Adds each fault's ``active`` port to
     ``active`` by its index; returns the corrupted port (``source`` itself
-    without such faults)."""
+    without such faults). ``counts_per_revolution``: each environment's
+    encoder counts, for faults on the encoders."""
     if not _faults_on(scenarios, signal):
         return source
-    counts = kwargs.pop("counts_per_revolution", None)
+    counts = counts_per_revolution
     chain = AddEnvironments(builder, f"faults_{signal}", len(scenarios), lambda b, i: (
         AddFaultChain(b, scenarios[i].faults, signal, size,
                       counts_per_revolution=None if counts is None else counts[i])))
