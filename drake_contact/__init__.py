@@ -35,6 +35,8 @@ _EXPORTS = {
         "AddSignalLoggers", "MakeRunDiagram", "RunResult", "SignalLoggers", "simulate",
         "simulate_scenario"),
     "drake_contact.diagram": ("ContactStation", "MakeContactDiagram", "SeedNoise", "Signal"),
+    "drake_contact.structure": ("ensemble_structure",),
+    "drake_contact.batching": ("assert_batched_equals_alone",),
     "drake_contact.errors": ("ScenarioError", "SimulationDiverged"),
     "drake_contact.control.safety_supervisor": ("SafetyConfig", "SafetySupervisor"),
     "drake_contact.faults": (
@@ -70,6 +72,9 @@ __all__ = [
     # Building
     "MakeContactDiagram", "ContactStation", "Signal", "MeasuredSignals", "AddSignalLoggers",
     "SignalLoggers", "MakeRunDiagram", "write_diagram",
+    # Ensembles: what N environments in one station must share, and the
+    # check that a batched system gives each environment its run alone
+    "ensemble_structure", "assert_batched_equals_alone",
     # Running
     "SeedNoise", "simulate", "simulate_scenario", "run", "RunResult", "SimulationDiverged",
     "compute_metrics",

@@ -165,6 +165,9 @@ def _matrices(system):
     """(A, B, C, D, y0, period) of a LinearSystem, MatrixGain or stateless
     AffineSystem; ScenarioError for anything else."""
     if isinstance(system, LinearSystem):
+        if system.num_states() and system.time_period() <= 0:
+            raise ValueError(f"LinearSystemBank serves discrete LinearSystems: "
+                             f"'{system.get_name()}' is continuous (time_period 0)")
         return (system.A(), system.B(), system.C(), system.D(), None, system.time_period())
     if isinstance(system, AffineSystem) and system.num_states() == 0:
         return (system.A(), system.B(), system.C(), system.D(), system.y0(), 0.0)
@@ -261,8 +264,15 @@ def StackedSymbolicSystem(pieces, *, input_sizes=None, output_sizes=None,
     next field's, so a Multiplexer of the fields' arm-axis ports feeds it.
     The output is field-major by ``output_sizes`` likewise, for a
     Demultiplexer to split into arm-axis ports. The state is env-major and
-    starts at 0."""
+    starts at 0.
+
+    Raises ValueError for pieces of different sizes, fields that do not sum
+    to the input or output, or a state without ``time_period`` (a
+    continuous system, which only one piece could give), and TypeError for
+    an output or dynamics that is not an expression (a bare ``Variable``:
+    wrap it, ``Expression(v)``), so that one piece and N behave alike."""
     pieces = list(pieces)
+    _check_pieces(pieces, input_sizes, output_sizes, time_period)
     if len(pieces) > 1:
         return CompiledExpressions(pieces, input_sizes=input_sizes, output_sizes=output_sizes,
                                    time_period=time_period)
@@ -271,6 +281,32 @@ def StackedSymbolicSystem(pieces, *, input_sizes=None, output_sizes=None,
                                 input=list(piece["input"]),
                                 dynamics=list(piece.get("dynamics", [])),
                                 output=list(piece["output"]), time_period=time_period)
+
+
+def _check_pieces(pieces, input_sizes, output_sizes, time_period):
+    if not pieces:
+        raise ValueError("StackedSymbolicSystem: no pieces (one per environment)")
+    sizes = {(len(p["input"]), len(p.get("state", [])), len(p["output"]),
+              len(p.get("dynamics", []))) for p in pieces}
+    if len(sizes) != 1:
+        raise ValueError(f"StackedSymbolicSystem: the pieces differ in their sizes "
+                         f"(input, state, output, dynamics): {sorted(sizes)}")
+    ((m, k, p, d),) = sizes
+    if d != k:
+        raise ValueError(f"StackedSymbolicSystem: {d} dynamics for a state of {k}")
+    if k and not time_period > 0:
+        raise ValueError("StackedSymbolicSystem: a state needs a time_period > 0 (a discrete "
+                         f"update); got {time_period}")
+    for name, fields, size in (("input_sizes", input_sizes, m), ("output_sizes", output_sizes, p)):
+        if fields is not None and sum(fields) != size:
+            raise ValueError(f"StackedSymbolicSystem: {name} {list(fields)} do not sum to {size}")
+    for piece in pieces:
+        for key in ("output", "dynamics"):
+            for e in piece.get(key, []):
+                if not isinstance(e, (symbolic.Expression, float, int)):
+                    raise TypeError(f"StackedSymbolicSystem: {key} {e!r} is a "
+                                    f"{type(e).__name__}, not an Expression (wrap a Variable "
+                                    "as Expression(v))")
 
 
 class _Program:
@@ -353,7 +389,7 @@ class _Program:
                 return a
             return self._reg((name, a, b))
         if name is None:
-            raise NotImplementedError(f"CompiledExpressions: expression kind {kind}")
+            raise TypeError(f"CompiledExpressions: expression kind {kind} is not supported")
         return self._reg((name, *(self.expression(a) for a in args)))
 
     def formula(self, f):
@@ -375,7 +411,7 @@ class _Program:
                 result = self._reg(("and" if kind == F.And else "or", result,
                                     self.formula(other)))
             return result
-        raise NotImplementedError(f"CompiledExpressions: formula kind {kind}")
+        raise TypeError(f"CompiledExpressions: formula kind {kind} is not supported")
 
     def signature(self, outputs):
         return tuple(self.code), tuple(outputs)

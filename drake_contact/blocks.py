@@ -8,7 +8,8 @@ whose ports are exported by name, so a block is wired and tested like any
 other system: ``block.GetInputPort("wrench")``, ``block.GetOutputPort("voltage")``.
 """
 
-from pydrake.systems.framework import DiagramBuilder, InputPort
+from pydrake.systems.framework import Diagram, DiagramBuilder, InputPort, PortDataType
+from pydrake.systems.primitives import Demultiplexer, Multiplexer
 
 from drake_contact.errors import ScenarioError
 
@@ -22,6 +23,79 @@ def AddSubdiagram(builder: DiagramBuilder, name: str, build):
     list of inner input ports, all fed by the exported input). Returns the
     sub-diagram, added to ``builder``.
     """
+    return builder.AddSystem(_subdiagram(name, build))
+
+
+def system_ports(system) -> dict:
+    """Every input port and every vector output port of ``system`` by name
+    (the ports dict of :func:`AddSubdiagram` and :func:`AddEnvironments`)."""
+    inputs = {system.get_input_port(i).get_name(): system.get_input_port(i)
+              for i in range(system.num_input_ports())}
+    return inputs | {system.get_output_port(i).get_name(): system.get_output_port(i)
+                     for i in range(system.num_output_ports())
+                     if system.get_output_port(i).get_data_type() == PortDataType.kVectorValued}
+
+
+class EnvironmentCopies(Diagram):
+    """N one-environment blocks as one system with environment-major ports:
+    each input split by a Demultiplexer (``<port>_split``), each output
+    joined by a Multiplexer (``<port>_join``); environment i's block is the
+    sub-diagram ``<name>_<i>``, kept in ``environments[i]`` (the explicit
+    map from each system to its environment: :func:`drake_contact.diagram.SeedNoise`
+    seeds the noise inside it with environment i's seed).
+
+    ``build(builder, i)`` adds environment i's systems to ``builder`` and
+    returns its ports as :func:`AddSubdiagram`'s ``build`` does; every
+    environment's block must have the same ports at the same sizes. For a
+    role that is not batched (a plug-in without ``ensemble``, the safety
+    supervisor, the contact detector, the faults)."""
+
+    def __init__(self, name: str, count: int, build):
+        super().__init__()
+        builder = DiagramBuilder()
+        self.environments = [builder.AddSystem(_subdiagram(f"{name}_{i}", lambda inner, i=i:
+                                                           build(inner, i)))
+                             for i in range(count)]
+        first = self.environments[0]
+        for p in range(first.num_input_ports()):
+            port = first.get_input_port(p)
+            split = builder.AddNamedSystem(f"{port.get_name()}_split",
+                                           Demultiplexer([port.size()] * count))
+            for i, block in enumerate(self.environments):
+                builder.Connect(split.get_output_port(i), block.get_input_port(p))
+            builder.ExportInput(split.get_input_port(), port.get_name())
+        for p in range(first.num_output_ports()):
+            port = first.get_output_port(p)
+            join = builder.AddNamedSystem(f"{port.get_name()}_join",
+                                          Multiplexer([port.size()] * count))
+            for i, block in enumerate(self.environments):
+                builder.Connect(block.get_output_port(p), join.get_input_port(i))
+            builder.ExportOutput(join.get_output_port(), port.get_name())
+        builder.BuildInto(self)
+        self.set_name(name)
+
+
+def AddEnvironments(builder: DiagramBuilder, name: str, count: int, build) -> dict:
+    """The one adapter for a role that is not batched: ``build(builder, i)``
+    adds environment i's systems and returns its ports by name (inputs as a
+    port or a list of ports fed together, as :func:`AddSubdiagram`). One
+    environment: its systems go straight into ``builder`` and the ports are
+    returned as they are (a batch of one is the system alone). N > 1: an
+    :class:`EnvironmentCopies` ``name`` of the N blocks is added, and its
+    environment-major ports are returned by name."""
+    if count == 1:
+        return build(builder, 0)
+    return system_ports(builder.AddSystem(EnvironmentCopies(name, count, build)))
+
+
+def connect(builder: DiagramBuilder, source, destination):
+    """Connects the output port ``source`` to the input ``destination``, or
+    to each of a list of inputs fed together (a ports dict's input)."""
+    for port in destination if isinstance(destination, (list, tuple)) else [destination]:
+        builder.Connect(source, port)
+
+
+def _subdiagram(name, build):
     inner = DiagramBuilder()
     for port_name, port in build(inner).items():
         ports = port if isinstance(port, (list, tuple)) else [port]
@@ -33,7 +107,7 @@ def AddSubdiagram(builder: DiagramBuilder, name: str, build):
             inner.ExportOutput(port, port_name)
     diagram = inner.Build()
     diagram.set_name(name)
-    return builder.AddSystem(diagram)
+    return diagram
 
 
 def environment_configs(config, kind, prefix) -> list:

@@ -23,27 +23,34 @@ torque it computes from that acts from t_n.
 whose exported output ports are its signals, each documented in
 ``station.signals`` (name -> :class:`Signal`: size, meaning, and the log keys
 it is logged under). A new signal is one ``signals.export(...)`` line here.
+
+One code path builds every N (:func:`MakeEnsembleDiagram`): each role is one
+system whose ports are environment-major (environment i's k values at
+``[k i, k (i + 1))``), wired with plain ``builder.Connect``. N = 1 is a
+batch of one: each role's system alone, the thesis's diagram. A role that
+is not batched is N single systems behind one adapter
+(:func:`~drake_contact.blocks.AddEnvironments`), which at N = 1 is the
+system itself.
 """
 
 import dataclasses as dc
 import functools
-import re
 import zlib
 
 import numpy as np
 from pydrake.common import RandomGenerator
-from pydrake.systems.framework import Diagram, DiagramBuilder, PortDataType
+from pydrake.systems.framework import Diagram, DiagramBuilder, InputPort
 from pydrake.systems.primitives import (
-    Adder, ConstantVectorSource, Demultiplexer, MatrixGain, Multiplexer, RandomSource,
-    SymbolicVectorSystem)
+    Adder, ConstantVectorSource, MatrixGain, Multiplexer, RandomSource)
 from pydrake.symbolic import Variable, floor, if_then_else
 
 from drake_contact.arm_axis import LinearSystemBank, StackedSymbolicSystem
+from drake_contact.blocks import AddEnvironments, EnvironmentCopies, connect, system_ports
 from drake_contact.control.force_reference import ForceReference
 from drake_contact.control.safety_supervisor import (
     SAFETY_STATES, STOP_REASONS, SafetySupervisor)
 from drake_contact.errors import ScenarioError
-from drake_contact.faults import ChainFaults, FaultClock
+from drake_contact.faults import AddFaultChain, FaultClock
 from drake_contact.identification.identifiers import AddIdentifiers
 from drake_contact.measured import MEASUREMENTS, MeasuredSignals
 from drake_contact.plant.arm import (
@@ -58,6 +65,7 @@ from drake_contact.scenario import Scenario
 from drake_contact.sensing.dsp import AddDspForceInput
 from drake_contact.sensing.estimator import AddKinematicEstimator
 from drake_contact.sensing.force_sensor import AddForceSensor
+from drake_contact.structure import check_ensemble_structure
 
 
 @dc.dataclass(frozen=True)
@@ -74,18 +82,28 @@ class Signal:
 
 
 class _Signals:
-    """Collects one environment's exports: one call documents and logs a
-    signal (:func:`_export_envs` exports them)."""
+    """Collects the station's exports: one call documents and logs a
+    signal (:meth:`export_all` exports them)."""
 
     def __init__(self):
         self.exported = {}
 
     def export(self, name, port, meaning, *, log_as=None, log=True):
         """Exports ``port`` as ``name``; logs it under ``name`` (a size-1
-        port as a 1-D log), or under the keys of ``log_as``."""
-        if log_as is None:
-            log_as = {name: 0 if port.size() == 1 else slice(0, port.size())} if log else {}
-        self.exported[name] = (port, meaning, dict(log_as))
+        signal as a 1-D log), or under the keys of ``log_as``."""
+        self.exported[name] = (port, meaning, log_as, log)
+
+    def export_all(self, builder, count) -> dict:
+        """Exports every collected port (environment-major, ``count``
+        environments); returns the station's ``signals``."""
+        signals = {}
+        for name, (port, meaning, log_as, log) in self.exported.items():
+            size = port.size() // count
+            if log_as is None:
+                log_as = {name: 0 if size == 1 else slice(0, size)} if log else {}
+            builder.ExportOutput(port, name)
+            signals[name] = Signal(size, meaning, dict(log_as))
+        return signals
 
 
 class ContactStation(Diagram):
@@ -97,213 +115,18 @@ class ContactStation(Diagram):
     (``scenario`` is the first, the only one of a one-environment station);
     ``signals`` maps each exported output port's name to its
     :class:`Signal`, whose size is one environment's: the port carries
-    ``num_envs`` of them, environment i's at ``[size * i, size * (i + 1))``.
-    Everything that evolves lives in the Context, as in any Diagram."""
+    ``num_envs`` of them, environment i's at ``[size * i, size * (i + 1))``;
+    ``noise_sources`` lists each RandomSource with its environment and the
+    name that keys its seed (:func:`SeedNoise`). Everything that evolves
+    lives in the Context, as in any Diagram."""
 
-    def __init__(self, scenarios, signals: dict):
+    def __init__(self, scenarios, signals: dict, noise_sources: list):
         super().__init__()
         self.scenarios = list(scenarios)
         self.scenario = self.scenarios[0]
         self.num_envs = len(self.scenarios)
         self.signals = signals
-
-
-class _Env:
-    """Environment ``index``'s view of the station's builder: adds its
-    systems as ``<name>@<index>`` (as ``<name>`` in a one-environment
-    station) and connects like the DiagramBuilder it wraps."""
-
-    def __init__(self, builder, index: int, count: int):
-        self.builder, self.index, self.count = builder, index, count
-
-    def name(self, name: str) -> str:
-        return name if self.count == 1 else f"{name}@{self.index}"
-
-    def AddNamedSystem(self, name, system):
-        return self.builder.AddNamedSystem(self.name(name), system)
-
-    def AddSystem(self, system):
-        system.set_name(self.name(system.get_name()))
-        return self.builder.AddSystem(system)
-
-    def Connect(self, source, destination):
-        self.builder.Connect(source, destination)
-
-
-class _Wiring:
-    """The station's DiagramBuilder, for systems that serve all N
-    environments at once: environment i wires to a shared system through
-    its views (:meth:`roles`), and the wiring connects shared systems to
-    one another directly when every environment's connection runs between
-    the same two ports in the arm axis's order; otherwise a Demultiplexer
-    splits a shared output (made when an environment first needs its
-    part) and a Multiplexer gathers a shared input (at :meth:`finish`).
-    Every other call goes to the builder."""
-
-    def __init__(self, builder, count):
-        self.builder, self.count = builder, count
-        self._axes, self._gathers = {}, []
-
-    def __getattr__(self, name):
-        return getattr(self.builder, name)
-
-    def roles(self, name, system):
-        """``system`` added as ``name`` (``None``: already added) to serve
-        all environments; returns each environment's view of it (the
-        system itself in a one-environment station)."""
-        if name is not None:
-            system = self.builder.AddNamedSystem(name, system)
-        if self.count == 1:
-            return [system]
-        return [_Role(self, system, i) for i in range(self.count)]
-
-    def axis(self, port):
-        """The arm-axis output ``port`` (each environment's views come from it)."""
-        key = (id(port.get_system()), int(port.get_index()))
-        if key not in self._axes:
-            self._axes[key] = _Axis(self, port)
-        return self._axes[key]
-
-    def gather(self, port):
-        """The arm-axis input ``port``, fed environment by environment."""
-        key = (id(port.get_system()), int(port.get_index()))
-        found = [g for g in self._gathers if g.key == key]
-        if found:
-            return found[0]
-        gather = _Gather(self, port, key)
-        self._gathers.append(gather)
-        return gather
-
-    def resolve(self, source):
-        return source.whole.split(source.index) if _is_output_part(source) else source
-
-    def Connect(self, source, destination):
-        if isinstance(destination, _Part):
-            destination.whole.sources[destination.index] = source
-        else:
-            self.builder.Connect(self.resolve(source), destination)
-
-    def ExportOutput(self, source, name):
-        return self.builder.ExportOutput(self.resolve(source), name)
-
-    def combined(self, sources, name):
-        """One output port carrying ``sources`` (one per environment, in
-        order): their shared system's own port when they are its views in
-        order, else a Multiplexer ``name`` of them."""
-        first = sources[0]
-        if (_is_output_part(first) and len(sources) == first.whole.count
-                and all(_is_output_part(s) and s.whole is first.whole and s.index == i
-                        for i, s in enumerate(sources))):
-            return first.whole.port
-        mux = self.builder.AddNamedSystem(name, Multiplexer([first.size()] * len(sources)))
-        for i, source in enumerate(sources):
-            self.builder.Connect(self.resolve(source), mux.get_input_port(i))
-        return mux.get_output_port()
-
-    def finish(self):
-        """Connects every shared input its environments fed."""
-        for gather in self._gathers:
-            fed = [s for s in gather.sources if s is not None]
-            if not fed:
-                continue
-            if len(fed) != len(gather.sources):
-                raise ScenarioError(f"input '{gather.port.get_name()}' of a shared system is "
-                                    "fed in some environments only: they must share a structure")
-            self.builder.Connect(self.combined(gather.sources, gather.name), gather.port)
-
-
-class _Axis:
-    """An output port carrying N environments' values (environment i's
-    ``size`` values at ``[size i, size (i + 1))``)."""
-
-    def __init__(self, wiring, port):
-        self.wiring, self.port, self.count = wiring, port, wiring.count
-        self.size = port.size() // self.count
-        self._split = None
-
-    def split(self, index):
-        if self._split is None:
-            name = f"{self.port.get_system().get_name()}_{self.port.get_name()}_envs"
-            self._split = self.wiring.builder.AddNamedSystem(
-                name, Demultiplexer([self.size] * self.count))
-            self.wiring.builder.Connect(self.port, self._split.get_input_port())
-        return self._split.get_output_port(index)
-
-
-class _Part:
-    """Environment ``index``'s part of an arm-axis port (an :class:`_Axis`
-    or a :class:`_Gather`)."""
-
-    def __init__(self, whole, index):
-        self.whole, self.index = whole, index
-
-    def size(self):
-        return self.whole.size
-
-
-def _is_output_part(port):
-    return isinstance(port, _Part) and isinstance(port.whole, _Axis)
-
-
-class _Gather:
-    """An input port carrying N environments' values, fed one by one."""
-
-    def __init__(self, wiring, port, key):
-        self.port, self.key = port, key
-        self.sources = [None] * wiring.count
-        self.size = port.size() // wiring.count
-        self.name = f"{port.get_system().get_name()}_{port.get_name()}_envs"
-
-
-class _Role:
-    """Environment ``index``'s view of a system serving all environments:
-    its ports by name, as the system's own for one environment."""
-
-    def __init__(self, wiring, system, index):
-        self._wiring, self._system, self._index = wiring, system, index
-
-    def GetOutputPort(self, name):
-        return _Part(self._wiring.axis(self._system.GetOutputPort(name)), self._index)
-
-    def GetInputPort(self, name):
-        return _Part(self._wiring.gather(self._system.GetInputPort(name)), self._index)
-
-    def get_output_port(self):
-        return _Part(self._wiring.axis(self._system.get_output_port()), self._index)
-
-    def get_input_port(self):
-        return _Part(self._wiring.gather(self._system.get_input_port()), self._index)
-
-    def HasOutputPort(self, name):
-        return self._system.HasOutputPort(name)
-
-    def HasInputPort(self, name):
-        return self._system.HasInputPort(name)
-
-    def input_ports(self):
-        return {name: self.GetInputPort(name) for name in _input_ports(self._system)}
-
-    def vector_outputs(self):
-        return {name: self.GetOutputPort(name) for name in _vector_outputs(self._system)}
-
-
-def _inputs_of(role):
-    return role.input_ports() if isinstance(role, _Role) else _input_ports(role)
-
-
-def _outputs_of(role):
-    return role.vector_outputs() if isinstance(role, _Role) else _vector_outputs(role)
-
-
-def _input_ports(system):
-    return {system.get_input_port(i).get_name(): system.get_input_port(i)
-            for i in range(system.num_input_ports())}
-
-
-def _vector_outputs(system):
-    return {system.get_output_port(i).get_name(): system.get_output_port(i)
-            for i in range(system.num_output_ports())
-            if system.get_output_port(i).get_data_type() == PortDataType.kVectorValued}
+        self.noise_sources = noise_sources
 
 
 def SampleHold(period_s, size, time_step, count=1):
@@ -324,63 +147,111 @@ def SampleHold(period_s, size, time_step, count=1):
     return StackedSymbolicSystem(pieces, time_period=time_step)
 
 
-def _add_controller(builder, scenarios, states, measured):
+def FiniteGuard(size, count=1):
+    """u where it is finite, else 0, element by element (``size`` elements
+    for each of ``count`` environments): in an ensemble, between each
+    environment and the plant, whose every input must be finite (the plant
+    stops the whole simulation on a NaN), so that one diverging environment
+    does not stop the others. The runner reports that environment as
+    diverged from its logs. Stateless."""
+    pieces = []
+    for _ in range(count):
+        u = [Variable(f"u{i}") for i in range(size)]
+        pieces.append({"input": u,
+                       "output": [if_then_else(abs(x) < np.inf, x, 0.0) for x in u]})
+    return StackedSymbolicSystem(pieces)
+
+
+def _bank(systems):
+    """The one system of a batch of one, else a LinearSystemBank of them."""
+    return systems[0] if len(systems) == 1 else LinearSystemBank(systems)
+
+
+def _faults_on(scenarios, signal) -> bool:
+    """Whether the environments' faults corrupt ``signal`` (all of them or
+    none: the structure key holds each fault's signal)."""
+    return any(f.signal == signal for f in scenarios[0].faults)
+
+
+def _add_fault_chains(builder, scenarios, signal, source, size, clock, active, *,
+                      counts_per_revolution=None):
+    """The faults on ``signal`` of every environment, after the output port
+    ``source`` (environment-major, ``size`` per environment): one adapter
+    (:func:`~drake_contact.blocks.AddEnvironments`) of each environment's
+    chain, fed by ``clock``. Adds each fault's ``active`` port to
+    ``active`` by its index; returns the corrupted port (``source`` itself
+    without such faults). ``counts_per_revolution``: each environment's
+    encoder counts, for faults on the encoders."""
+    if not _faults_on(scenarios, signal):
+        return source
+    counts = counts_per_revolution
+    chain = AddEnvironments(builder, f"faults_{signal}", len(scenarios), lambda b, i: (
+        AddFaultChain(b, scenarios[i].faults, signal, size,
+                      counts_per_revolution=None if counts is None else counts[i])))
+    connect(builder, source, chain["signal"])
+    connect(builder, clock, chain["contact_time"])
+    active |= {int(name.rpartition("_")[2]): port for name, port in chain.items()
+               if name.startswith("fault_active_")}
+    return chain["signal_faulty"]
+
+
+def _add_controller(builder, scenarios, state, measured):
     """Adds the scenarios' controller (:func:`drake_contact.plugins.MakeController`)
-    as ``controller`` (one system for all environments when its plug-in
-    declares ``ensemble``, else one per environment), the force reference
-    if it reads ``force_desired``, and the station's contact detector if it
-    has no ``contact_info`` but something needs one; connects every input by
-    name. ``states``: each environment's plant state port; ``measured``:
-    each one's MeasuredSignals. Returns (the controller's systems, per
-    environment {input name: port}, {signal name: output port} of what the
-    station exports from it)."""
+    as ``controller`` (one system serving all environments when its plug-in
+    declares ``ensemble``, else one per environment behind the adapter), the
+    force reference if it reads ``force_desired``, and the station's contact
+    detector if it has no ``contact_info`` but something needs one; connects
+    every input by name. ``state``: the plant state port; ``measured``: the
+    MeasuredSignals. Returns ({input name: port}, {signal name: output
+    port} of what the station exports from it, whether the station's
+    detector says the mode). Every port is environment-major."""
     scenario = scenarios[0]
     config = scenario.controller
     declared = controller_declaration(config.name)
     options = [s.controller.factory_options() for s in scenarios]
     count = len(scenarios)
     if count > 1 and declared.ensemble:
-        systems = [MakeController(config.name, options, count=count)]
-        roles = builder.roles("controller", systems[0])
+        ports = system_ports(builder.AddNamedSystem(
+            "controller", MakeController(config.name, options, count=count)))
     else:
-        systems = roles = [builder.AddNamedSystem("controller" if count == 1 else f"controller@{i}",
-                                                  MakeController(config.name, o))
-                           for i, o in enumerate(options)]
-    inputs = [_inputs_of(r) for r in roles]
-    ports = [_outputs_of(r) for r in roles]
-    sources = [dict(m.items()) | {"plant_state": state} for m, state in zip(measured, states)]
-    contact = [p.get("contact_info") for p in ports]
-    if "contact_info" not in ports[0] and ("force_desired" in inputs[0] or scenario.identifiers):
-        detectors = [builder.AddNamedSystem(
-            "contact_detector" if count == 1 else f"contact_detector@{i}", ContactDetector())
-            for i in range(count)]
-        for detector, m, p in zip(detectors, measured, ports):
-            builder.Connect(m.force_filtered, detector.GetInputPort("force"))
-            builder.Connect(m.tip_pose_measured, detector.GetInputPort("tip_pose"))
-            p["mode"] = detector.GetOutputPort("mode")
-        contact = [d.GetOutputPort("contact_info") for d in detectors]
-    if "force_desired" in inputs[0]:
+        systems = [MakeController(config.name, o) for o in options]
+        ports = AddEnvironments(builder, "controller", count, lambda b, i: system_ports(
+            b.AddNamedSystem("controller", systems[i])))
+    inputs = {n: p for n, p in ports.items() if _is_input(p)}
+    outputs = {n: p for n, p in ports.items() if not _is_input(p)}
+    sources = dict(measured.items()) | {"plant_state": state}
+    contact = outputs.get("contact_info")
+    detected = contact is None
+    if contact is None and ("force_desired" in inputs or scenario.identifiers):
+        detector = AddEnvironments(builder, "contact_detector", count, lambda b, i: system_ports(
+            b.AddNamedSystem("contact_detector", ContactDetector())))
+        connect(builder, measured.force_filtered, detector["force"])
+        connect(builder, measured.tip_pose_measured, detector["tip_pose"])
+        outputs["mode"] = detector["mode"]
+        contact = detector["contact_info"]
+    if "force_desired" in inputs:
         configs = [s.force_reference for s in scenarios]
-        references = builder.roles("force_reference",
-                                   ForceReference(configs if count > 1 else configs[0]))
-        for reference, c, source, p in zip(references, contact, sources, ports):
-            builder.Connect(c, reference.GetInputPort("contact_info"))
-            source["force_desired"] = p["force_desired"] = reference.GetOutputPort(
-                "force_desired")
-    for own, source in zip(inputs, sources):
-        for name, port in own.items():
-            if name in source:
-                builder.Connect(source[name], port)
-            elif name in STATION_ACTION_INPUTS:
-                if count > 1:
-                    raise ScenarioError(f"controller '{config.name}' reads {name} from outside "
-                                        "the station: an ensemble cannot export it")
-                builder.ExportInput(port, name)
+        reference = builder.AddNamedSystem("force_reference",
+                                           ForceReference(configs if count > 1 else configs[0]))
+        builder.Connect(contact, reference.GetInputPort("contact_info"))
+        sources["force_desired"] = outputs["force_desired"] = reference.GetOutputPort(
+            "force_desired")
+    for name, port in inputs.items():
+        if name in sources:
+            connect(builder, sources[name], port)
+        elif name in STATION_ACTION_INPUTS:
+            if count > 1:
+                raise ScenarioError(f"controller '{config.name}' reads {name} from outside "
+                                    "the station: an ensemble cannot export it")
+            builder.ExportInput(port, name)
     # impedance_estimate is connected once the identifiers exist.
-    for p, c in zip(ports, contact):
-        if c is not None:
-            p["contact_info"] = c
-    return systems, inputs, ports
+    if contact is not None:
+        outputs["contact_info"] = contact
+    return inputs, outputs, detected
+
+
+def _is_input(port):
+    return isinstance(port, (list, tuple, InputPort))
 
 
 #: Controller inputs the station exports as its own input ports, under the
@@ -406,109 +277,77 @@ DETECTOR_SIGNALS = {
 }
 
 
-def _add_arms(builder, scenarios, shared):
+def _add_arms(builder, scenarios):
     """The plant with one arm per environment (:func:`AddArmPlant`); returns
-    (plant, scene_graph, each environment's plant state port [q; v] (6),
-    its actuation port (3), its joints' inertias (M's diagonal at q0)).
-    With ``shared`` (an ensemble whose roles serve all environments), the
-    state ports are views of one port of every arm's [q; v] in turn, and
-    the actuation ports are parts of the plant's whole actuation input."""
-    plant, scene_graph = AddArmPlant(builder.builder, [s.arm for s in scenarios])
+    (plant, scene_graph, the arms' state [q; v] (6 per environment), their
+    joints' inertias (M's diagonal at q0, 3 per environment)). Each arm's
+    actuators follow the previous arm's (AddArmPlant adds them in turn), so
+    the plant's actuation and applied-force inputs are environment-major;
+    its state port is too for one arm, and a Multiplexer
+    ``plant_state_envs`` of the arms' state ports for more."""
+    plant, scene_graph = AddArmPlant(builder, [s.arm for s in scenarios])
     inertias = np.diag(plant.CalcMassMatrix(plant.CreateDefaultContext()))
     if len(scenarios) == 1:
-        return (plant, scene_graph, [plant.get_state_output_port()],
-                [plant.get_actuation_input_port()], [inertias])
-    arms = arm_instances(plant)
-    states = [plant.get_state_output_port(arm) for arm in arms]
-    inertias = [inertias[3 * i:3 * i + 3] for i in range(len(arms))]
-    if not shared:
-        return (plant, scene_graph, states,
-                [plant.get_actuation_input_port(arm) for arm in arms], inertias)
-    # Each arm's actuators follow the previous arm's (AddArmPlant adds them
-    # in turn): the whole input is environment-major.
-    axis = builder.axis(builder.combined(states, "plant_state_envs"))
-    actuation = builder.gather(plant.get_actuation_input_port())
-    return (plant, scene_graph, [_Part(axis, i) for i in range(len(arms))],
-            [_Part(actuation, i) for i in range(len(arms))], inertias)
+        return plant, scene_graph, plant.get_state_output_port(), inertias
+    states = builder.AddNamedSystem("plant_state_envs", Multiplexer([6] * len(scenarios)))
+    for i, arm in enumerate(arm_instances(plant)):
+        builder.Connect(plant.get_state_output_port(arm), states.get_input_port(i))
+    return plant, scene_graph, states.get_output_port(), inertias
 
 
 @dc.dataclass
 class _Physics:
-    """One environment's true physics around its arm: the tip kinematics,
-    the wall (behind its environment faults), the joint friction, its faults'
-    ports, and the torque the wall and the friction put on the joints."""
+    """The true physics around the arms: the tip kinematics, the wall
+    (behind any environment faults), the joint friction, the faults'
+    contact clock (None without faults) and each fault's ``active`` port
+    by its index, and the torque the wall and the friction put on the
+    joints. Ports environment-major."""
 
     tip: object
     wall: object
     friction: object
-    faults: object
+    clock: object
+    active: dict
     external: object
 
 
-def _one_or_all(items):
-    """The one item of a one-environment station, else the list (the
-    constructors of the systems that serve all environments take both)."""
-    return items[0] if len(items) == 1 else items
-
-
-def _add_physics(builder, envs, scenarios, states, inertias, shared) -> list:
-    """The tip kinematics, the wall (behind the scenario's environment
-    faults) and the joint friction of every arm, wired to its state port:
-    with ``shared``, one system per role for all arms."""
+def _add_physics(builder, scenarios, state, inertias) -> _Physics:
+    """The tip kinematics, the wall (behind the scenarios' environment
+    faults) and the joint friction of every arm, wired to its state: one
+    system per role for all arms."""
     count = len(scenarios)
-    for scenario, m in zip(scenarios, inertias):
+    for scenario, m in zip(scenarios, np.reshape(inertias, (count, 3))):
         check_friction_stability(scenario.joint_friction, m, scenario.arm.time_step)
     h = scenarios[0].arm.time_step
-    scale_input = [any(f.signal == "stiffness" for f in s.faults) for s in scenarios]
-    if shared:
-        tips = builder.roles("tip_kinematics", TipKinematics(_kinematics_model(), count))
-        walls = builder.roles("wall", CompliantWall(
-            _one_or_all([s.environment for s in scenarios]), h,
-            stiffness_scale_input=scale_input[0]))
-        frictions = builder.roles(None, AddJointFriction(
-            builder, _one_or_all([s.joint_friction for s in scenarios]),
-            mass_matrix_diagonal=np.concatenate(inertias), time_step=h))
-        externals = builder.roles("external_torque", Adder(2, 3 * count))
-    else:
-        tips = [env.AddNamedSystem("tip_kinematics", TipKinematics(_kinematics_model()))
-                for env in envs]
-        walls = [env.AddNamedSystem("wall", CompliantWall(
-            s.environment, h, stiffness_scale_input=scale))
-            for env, s, scale in zip(envs, scenarios, scale_input)]
-        frictions = [AddJointFriction(env, s.joint_friction, mass_matrix_diagonal=m,
-                                      time_step=h)
-                     for env, s, m in zip(envs, scenarios, inertias)]
-        externals = [env.AddNamedSystem("external_torque", Adder(2, 3)) for env in envs]
-    out = []
-    for env, scenario, state, tip, wall, friction, external in zip(
-            envs, scenarios, states, tips, walls, frictions, externals):
-        env.Connect(state, tip.GetInputPort("plant_state"))
-        env.Connect(wall.GetOutputPort("force_on_tip"), tip.GetInputPort("force_on_tip"))
-        faults = scenario.faults
-        if faults:
-            # The faults' clock reads the true contact force; the wall's own
-            # inputs may be corrupted (environment faults).
-            clock = env.AddNamedSystem("fault_clock", FaultClock())
-            env.Connect(wall.GetOutputPort("contact_force"), clock.get_input_port())
-            clock = clock.get_output_port()
-            surface, active = ChainFaults(env, faults, "surface",
-                                          tip.GetOutputPort("tip_state"), 6, clock)
-            env.Connect(surface, wall.GetInputPort("tip_state"))
-            if wall.HasInputPort("stiffness_scale"):
-                one = env.AddNamedSystem("stiffness_nominal", ConstantVectorSource([1.0]))
-                scale, more = ChainFaults(env, faults, "stiffness", one.get_output_port(), 1,
-                                          clock)
-                env.Connect(scale, wall.GetInputPort("stiffness_scale"))
-                active |= more
-        else:
-            clock, active = None, {}
-            env.Connect(tip.GetOutputPort("tip_state"), wall.GetInputPort("tip_state"))
-        env.Connect(state, friction.GetInputPort("plant_state"))
-        env.Connect(tip.GetOutputPort("generalized_force"), external.GetInputPort("u0"))
-        env.Connect(friction.GetOutputPort("torque"), external.GetInputPort("u1"))
-        out.append(_Physics(tip, wall, friction, _FaultPorts(clock, active),
-                            external.GetOutputPort("sum")))
-    return out
+    tip = builder.AddNamedSystem("tip_kinematics", TipKinematics(_kinematics_model(), count))
+    wall = builder.AddNamedSystem("wall", CompliantWall(
+        [s.environment for s in scenarios], h,
+        stiffness_scale_input=_faults_on(scenarios, "stiffness")))
+    friction = AddJointFriction(builder, [s.joint_friction for s in scenarios],
+                                mass_matrix_diagonal=inertias, time_step=h)
+    external = builder.AddNamedSystem("external_torque", Adder(2, 3 * count))
+    builder.Connect(state, tip.GetInputPort("plant_state"))
+    builder.Connect(wall.GetOutputPort("force_on_tip"), tip.GetInputPort("force_on_tip"))
+    clock, active = None, {}
+    if scenarios[0].faults:
+        # The faults' clock reads the true contact force; the wall's own
+        # inputs may be corrupted (environment faults).
+        clocks = AddEnvironments(builder, "fault_clock", count, lambda b, i: system_ports(
+            b.AddNamedSystem("fault_clock", FaultClock())))
+        builder.Connect(wall.GetOutputPort("contact_force"), clocks["u0"])
+        clock = clocks["y0"]
+    surface = _add_fault_chains(builder, scenarios, "surface", tip.GetOutputPort("tip_state"),
+                                6, clock, active)
+    builder.Connect(surface, wall.GetInputPort("tip_state"))
+    if wall.HasInputPort("stiffness_scale"):
+        one = builder.AddNamedSystem("stiffness_nominal", ConstantVectorSource([1.0] * count))
+        scale = _add_fault_chains(builder, scenarios, "stiffness", one.get_output_port(), 1,
+                                  clock, active)
+        builder.Connect(scale, wall.GetInputPort("stiffness_scale"))
+    builder.Connect(state, friction.GetInputPort("plant_state"))
+    builder.Connect(tip.GetOutputPort("generalized_force"), external.GetInputPort("u0"))
+    builder.Connect(friction.GetOutputPort("torque"), external.GetInputPort("u1"))
+    return _Physics(tip, wall, friction, clock, active, external.GetOutputPort("sum"))
 
 
 @functools.cache
@@ -518,50 +357,15 @@ def _kinematics_model():
     return MakeArmModel()
 
 
-def _apply_to_arms(builder, plant, ports, shared):
-    """Feeds each environment's joint torque port (3) into the plant's
-    applied generalized force, in the arms' order (in an ensemble, through
-    :func:`FiniteGuard`)."""
-    count = len(ports)
-    if count == 1:
-        builder.Connect(ports[0], plant.get_applied_generalized_force_input_port())
-        return
-    if shared:
-        guard = FiniteGuard(3, count)
-        for port, role in zip(ports, builder.roles("external_torque_guard", guard)):
-            builder.Connect(port, role.get_input_port())
-        builder.Connect(guard.get_output_port(), plant.get_applied_generalized_force_input_port())
-        return
-    mux = builder.AddNamedSystem("external_torque_arms", Multiplexer([3] * count))
-    for i, port in enumerate(ports):
-        guard = builder.AddNamedSystem(f"external_torque_guard@{i}", FiniteGuard(3))
-        builder.Connect(port, guard.get_input_port())
-        builder.Connect(guard.get_output_port(), mux.get_input_port(i))
-    builder.Connect(mux.get_output_port(), plant.get_applied_generalized_force_input_port())
-
-
-def FiniteGuard(size, count=1):
-    """u where it is finite, else 0, element by element (``size`` elements
-    for each of ``count`` environments): in an ensemble, between each
-    environment and the plant, whose every input must be finite (the plant
-    stops the whole simulation on a NaN), so that one diverging environment
-    does not stop the others. The runner reports that environment as
-    diverged from its logs. Stateless."""
-    pieces = []
-    for _ in range(count):
-        u = [Variable(f"u{i}") for i in range(size)]
-        pieces.append({"input": u,
-                       "output": [if_then_else(abs(x) < np.inf, x, 0.0) for x in u]})
-    return StackedSymbolicSystem(pieces)
-
-
-@dc.dataclass
-class _FaultPorts:
-    """The FaultClock's output (None without faults) and each fault's
-    ``active`` output port by its index in the scenario."""
-
-    clock: object
-    active: dict
+def _apply_to_arms(builder, plant, torque, count):
+    """Feeds the joint torques (3 per environment, in the arms' order) into
+    the plant's applied generalized force; in an ensemble through
+    :func:`FiniteGuard`."""
+    if count > 1:
+        guard = builder.AddNamedSystem("external_torque_guard", FiniteGuard(3, count))
+        builder.Connect(torque, guard.get_input_port())
+        torque = guard.get_output_port()
+    builder.Connect(torque, plant.get_applied_generalized_force_input_port())
 
 
 def MakeFloorDiagram(scenario: Scenario, joint_torque=(4.0, 0.0, 0.0)):
@@ -569,10 +373,10 @@ def MakeFloorDiagram(scenario: Scenario, joint_torque=(4.0, 0.0, 0.0)):
     constant motor torque (N m) and no sensors or controller. Exports
     ``contact_force_true``."""
     scenario.validate()
-    builder = _Wiring(DiagramBuilder(), 1)
-    plant, _, states, _, inertias = _add_arms(builder, [scenario], True)
-    (physics,) = _add_physics(builder, [_Env(builder, 0, 1)], [scenario], states, inertias, True)
-    _apply_to_arms(builder, plant, [physics.external], True)
+    builder = DiagramBuilder()
+    plant, _, state, inertias = _add_arms(builder, [scenario])
+    physics = _add_physics(builder, [scenario], state, inertias)
+    _apply_to_arms(builder, plant, physics.external, 1)
     torque = builder.AddNamedSystem("joint_torque", ConstantVectorSource(list(joint_torque)))
     builder.Connect(torque.get_output_port(), plant.get_actuation_input_port())
     builder.ExportOutput(physics.wall.GetOutputPort("contact_force"), "contact_force_true")
@@ -596,253 +400,187 @@ def MakeContactDiagram(scenario: Scenario) -> ContactStation:
 
 def MakeEnsembleDiagram(scenarios) -> ContactStation:
     """N environments in one station: one plant holding N arms, and each
-    role of :func:`MakeContactDiagram` serving all N, every output port
-    carrying an arm axis (environment i's values at ``[k i, k (i + 1))``,
-    k its size in ``signals``).
+    role of :func:`MakeContactDiagram` one system serving all N, every port
+    environment-major (environment i's values at ``[k i, k (i + 1))``, k
+    its size in ``signals``). One scenario gives the one-environment
+    station: a batch of one, each role its system alone.
 
     Each environment has its own scenario (wall, noise seed, gains, faults,
-    ...); they must share a structure (the plant step, the controller and
-    what its plug-in's law switches on). A role whose system serves N
-    environments at once (the force sensor, the force reference, and a
-    controller whose plug-in declares ``ensemble``) is one system; any other
-    is one system per environment (named ``<name>@<i>``), Drake's C++
-    systems included. Environment i gives, bit for bit, the logs of
-    :func:`MakeContactDiagram` of its scenario, seeded alike
-    (:func:`SeedNoise`). One scenario gives the one-environment station."""
+    ...); they must share a structure
+    (:func:`drake_contact.structure.ensemble_structure`: the plant step, the
+    controller and what its plug-in switches on, the identifiers, the safety
+    supervisor, the signal of each fault, ...), checked before anything is
+    built: a ScenarioError names the first environment and field that
+    differ. A role whose system serves N environments at once (the arm
+    axis's roles, the force sensor, the force reference, and a controller or
+    identifier whose plug-in declares ``ensemble``) is that system; any
+    other (the safety supervisor, the contact detector, the faults, the DSP
+    with its anti-aliasing filter or force faults in, a plug-in without
+    ``ensemble``) is one system per environment behind one adapter
+    (:class:`~drake_contact.blocks.EnvironmentCopies`). Environment i gives,
+    bit for bit, the logs of :func:`MakeContactDiagram` of its scenario,
+    seeded alike (:func:`SeedNoise`)."""
     scenarios = list(scenarios)
     if not scenarios:
         raise ScenarioError("an ensemble needs at least one scenario")
     for scenario in scenarios:
         scenario.validate()
-    _check_structure(scenarios)
+    check_ensemble_structure(scenarios)
     count = len(scenarios)
-    # Every role serves all environments at once, except around faults,
-    # which chain per environment between the roles.
-    shared = count == 1 or not any(s.faults for s in scenarios)
-    builder = _Wiring(DiagramBuilder(), count)
-    envs = [_Env(builder, i, count) for i in range(count)]
-    plant, scene_graph, states, actuation, inertias = _add_arms(builder, scenarios, shared)
-    physics = _add_physics(builder, envs, scenarios, states, inertias, shared)
-    _apply_to_arms(builder, plant, [p.external for p in physics], shared)
-    sensing = _add_sensing(builder, envs, scenarios, states, physics, shared)
-    control = _add_control(builder, envs, scenarios, states, sensing, physics, actuation, shared)
-    exports = []
-    for env, scenario, state, p, sensed, controlled in zip(
-            envs, scenarios, states, physics, sensing, control):
-        signals = _Signals()
-        _export_physics(signals.export, state, p.tip, p.wall)
-        _export_sensing_and_control(signals.export, scenario, sensed, controlled, p.friction)
-        _export_faults(signals.export, env, scenario, p.faults)
-        exports.append(signals.exported)
-    signals = _export_envs(builder, exports)
+    builder = DiagramBuilder()
+    plant, scene_graph, state, inertias = _add_arms(builder, scenarios)
+    physics = _add_physics(builder, scenarios, state, inertias)
+    _apply_to_arms(builder, plant, physics.external, count)
+    sensing = _add_sensing(builder, scenarios, state, physics)
+    control = _add_control(builder, scenarios, state, sensing, physics, plant)
+    signals = _Signals()
+    _export_physics(signals.export, state, physics.tip, physics.wall)
+    _export_sensing_and_control(signals.export, scenarios[0], sensing, control,
+                                physics.friction)
+    _export_faults(signals.export, builder, scenarios, physics)
+    exported = signals.export_all(builder, count)
     builder.ExportOutput(scene_graph.get_query_output_port(), "query_object")
-    signals["query_object"] = Signal(0, "the SceneGraph's query object (for visualizers)", {})
-    builder.finish()
-    station = ContactStation(scenarios, signals)
+    exported["query_object"] = Signal(0, "the SceneGraph's query object (for visualizers)", {})
+    station = ContactStation(scenarios, exported, [])
     builder.BuildInto(station)
     station.set_name("station")
+    station.noise_sources[:] = _noise_sources(station, sensing.gauge_noise)
     _check_unique_noise_names(station)
     return station
-
-
-def _check_structure(scenarios):
-    """Raises ScenarioError unless the scenarios can share one station: the
-    same plant step and controller."""
-    first = scenarios[0]
-    for i, scenario in enumerate(scenarios[1:], 1):
-        for field, value, base in (
-                ("arm.time_step", scenario.arm.time_step, first.arm.time_step),
-                ("controller.name", scenario.controller.name, first.controller.name)):
-            if value != base:
-                raise ScenarioError(
-                    f"{field} = {value!r} in environment {i} is out of range: an ensemble's "
-                    f"environments share it ({base!r} in environment 0)")
-
-
-def _export_envs(builder, exports):
-    """Exports each signal of the environments' ``exports`` (per
-    environment {name: (port, meaning, log_as)}) as one port carrying all of
-    them; returns the station's ``signals``."""
-    signals = {}
-    for name, (port, meaning, log_as) in exports[0].items():
-        ports = [exported[name][0] for exported in exports if name in exported]
-        if len(ports) != len(exports):
-            raise ScenarioError(f"the ensemble's environments differ in the signal '{name}': "
-                                "they must share a structure")
-        if len(ports) > 1:
-            port = builder.combined(ports, f"{name}_envs")
-        builder.ExportOutput(port, name)
-        signals[name] = Signal(ports[0].size(), meaning, dict(log_as))
-    return signals
 
 
 @dc.dataclass
 class _Sensing:
     """The sensors' ports: the encoders' counts after any encoder fault, the
-    DSP sub-diagram, and what the sampled systems read."""
+    DSP's ports by name, what the sampled systems read, and the force
+    sensor's noise sources in the environments' order."""
 
     counted: object
-    dsp: object
+    dsp: dict
     measured: MeasuredSignals
+    gauge_noise: list
 
 
-def _add_sensing(builder, envs, scenarios, states, physics, shared) -> list:
+def _add_sensing(builder, scenarios, state, physics) -> _Sensing:
     """The encoders and the kinematic estimator, the force sensor and the
-    DSP of every environment, with the faults on their signals; with
-    ``shared``, one system per role for all environments (the DSP too when
-    no environment's anti-aliasing filter is in)."""
+    DSP, with the faults on their signals: one system per role for all
+    environments (the DSPs one per environment behind the adapter when an
+    anti-aliasing filter or a force fault is in)."""
     count = len(scenarios)
     zeros = [s.arm.initial_positions for s in scenarios]
     readings = [encoder_reading(s.encoders, q0) for s, q0 in zip(scenarios, zeros)]
-    if shared:
-        encoders = builder.roles(None, AddEncoders(
-            builder, _one_or_all([s.encoders for s in scenarios]), zeros))
-        estimators = builder.roles(None, AddKinematicEstimator(
-            builder, _kinematics_model(), _one_or_all([s.estimator for s in scenarios]),
-            readings))
-    else:
-        encoders = [AddEncoders(env, s.encoders, q0) for env, s, q0 in zip(envs, scenarios, zeros)]
-        estimators = [AddKinematicEstimator(env, _kinematics_model(), s.estimator, reading)
-                      for env, s, reading in zip(envs, scenarios, readings)]
-    counted = []
-    for env, scenario, state, p, encoder, estimator in zip(
-            envs, scenarios, states, physics, encoders, estimators):
-        env.Connect(state, encoder.GetInputPort("plant_state"))
-        port = encoder.GetOutputPort("joint_positions_measured")
-        if p.faults.clock is not None:
-            port, active = ChainFaults(
-                env, scenario.faults, "encoders", port, 3, p.faults.clock,
-                counts_per_revolution=scenario.encoders.counts_per_revolution)
-            p.faults.active |= active
-        env.Connect(port, estimator.GetInputPort("joint_positions_measured"))
-        counted.append(port)
+    encoder = AddEncoders(builder, [s.encoders for s in scenarios], zeros)
+    estimator = AddKinematicEstimator(builder, _kinematics_model(),
+                                      [s.estimator for s in scenarios], readings)
+    builder.Connect(state, encoder.GetInputPort("plant_state"))
+    counted = _add_fault_chains(
+        builder, scenarios, "encoders", encoder.GetOutputPort("joint_positions_measured"), 3,
+        physics.clock, physics.active,
+        counts_per_revolution=[s.encoders.counts_per_revolution for s in scenarios])
+    builder.Connect(counted, estimator.GetInputPort("joint_positions_measured"))
 
-    configs = [s.force_sensor for s in scenarios]
-    sensors = builder.roles(None, AddForceSensor(builder, _one_or_all(configs)))
-    ticks = sensors[0].GetOutputPort("voltage_frame").size()
+    sensor = AddForceSensor(builder, [s.force_sensor for s in scenarios])
+    gauge_noise = [s for s in sensor.GetSystems() if isinstance(s, RandomSource)]
+    ticks = sensor.GetOutputPort("voltage_frame").size() // count
     fine_period = scenarios[0].force_sensor.fine_period
-    if shared and (count == 1 or all(s.dsp.anti_aliasing.mode == "off" for s in scenarios)):
-        dsps = builder.roles(None, AddDspForceInput(
-            builder, _one_or_all([s.dsp for s in scenarios]), fine_period, ticks,
-            faults=scenarios[0].faults))
+    if count == 1 or (scenarios[0].dsp.anti_aliasing.mode == "off"
+                      and not _faults_on(scenarios, "force")):
+        dsp = system_ports(AddDspForceInput(builder, [s.dsp for s in scenarios], fine_period,
+                                            ticks, faults=scenarios[0].faults))
     else:
-        dsps = [AddDspForceInput(env, s.dsp, fine_period, ticks, faults=s.faults)
-                for env, s in zip(envs, scenarios)]
-    out = []
-    for env, scenario, p, sensor, dsp, port, estimator in zip(
-            envs, scenarios, physics, sensors, dsps, counted, estimators):
-        env.Connect(p.wall.GetOutputPort("force_on_tip"), sensor.GetInputPort("wrench"))
-        env.Connect(p.tip.GetOutputPort("tip_state"), sensor.GetInputPort("tip_state"))
-        faults = p.faults
-        if dsp.HasInputPort("contact_time"):
-            env.Connect(faults.clock, dsp.GetInputPort("contact_time"))
-            faults.active |= {i: dsp.GetOutputPort(f"fault_active_{i}")
-                              for i, f in enumerate(scenario.faults) if f.signal == "force"}
-        env.Connect(sensor.GetOutputPort("voltage"), dsp.GetInputPort("voltage"))
-        if dsp.HasInputPort("voltage_frame"):
-            env.Connect(sensor.GetOutputPort("voltage_frame"), dsp.GetInputPort("voltage_frame"))
-        blocks = {"estimator": estimator, "dsp": dsp}
-        measured = MeasuredSignals(**{name: blocks[m.source].GetOutputPort(m.port)
-                                      for name, m in MEASUREMENTS.items()})
-        out.append(_Sensing(port, dsp, measured))
-    return out
+        dsp = AddEnvironments(builder, "dsp", count, lambda b, i: system_ports(AddDspForceInput(
+            b, scenarios[i].dsp, fine_period, ticks, faults=scenarios[i].faults)))
+    builder.Connect(physics.wall.GetOutputPort("force_on_tip"), sensor.GetInputPort("wrench"))
+    builder.Connect(physics.tip.GetOutputPort("tip_state"), sensor.GetInputPort("tip_state"))
+    if "contact_time" in dsp:
+        builder.Connect(physics.clock, dsp["contact_time"])
+        physics.active |= {int(name.rpartition("_")[2]): port for name, port in dsp.items()
+                           if name.startswith("fault_active_")}
+    builder.Connect(sensor.GetOutputPort("voltage"), dsp["voltage"])
+    if "voltage_frame" in dsp:
+        builder.Connect(sensor.GetOutputPort("voltage_frame"), dsp["voltage_frame"])
+    blocks = {"estimator": system_ports(estimator), "dsp": dsp}
+    measured = MeasuredSignals(**{name: blocks[m.source][m.port]
+                                  for name, m in MEASUREMENTS.items()})
+    return _Sensing(counted, dsp, measured, gauge_noise)
 
 
 @dc.dataclass
 class _Control:
-    """One environment's control side: the controller's output ports by
-    name, its identifiers and supervisor (None when absent), the torque the
-    controller commands and the one the plant gets, and whether the
+    """The control side: the controller's output ports by name, its
+    identifiers and the supervisor's ports (None when absent), the torque
+    the controller commands and the one the plant gets, and whether the
     station's contact detector (not the controller) says the mode."""
 
     outputs: dict
     identifiers: object
-    supervisor: object
+    supervisor: dict
     torque: object
     applied: object
     detected: bool
 
 
-def _add_control(builder, envs, scenarios, states, sensing, physics, actuation, shared) -> list:
+def _add_control(builder, scenarios, state, sensing, physics, plant) -> _Control:
     """The controller, the identifiers, the safety supervisor, the torque
     limits, any drive faults, the motors and (for a plant step under 1 ms)
-    the DAC's hold of every environment, wired from its measured signals to
-    its arm's actuation; with ``shared``, one torque limit, motor, DAC and
-    guard system for all environments."""
+    the DAC's hold, wired from the measured signals to the arms'
+    actuation; one torque limit, motor, DAC and guard system for all
+    environments."""
     count = len(scenarios)
-    measured = [s.measured for s in sensing]
-    systems, inputs, outputs = _add_controller(builder, scenarios, states, measured)
-    detected = not systems[0].HasOutputPort("contact_info")
-    h = scenarios[0].arm.time_step
-    if shared:
-        saturations = builder.roles(None, AddTorqueSaturation(
-            builder, np.concatenate([s.torque_limits for s in scenarios])))
-        gains = [MatrixGain(np.diag(s.arm.motor_torque_scale)) for s in scenarios]
-        motors = builder.roles("motors", _one_or_all(gains) if count == 1
-                               else LinearSystemBank(gains))
-        dacs = (builder.roles("dac", SampleHold(CONTROL_PERIOD, 3, h, count))
-                if h < CONTROL_PERIOD else [None] * count)
-        guards = (builder.roles("actuation_guard", FiniteGuard(3, count)) if count > 1
-                  else [None])
+    scenario = scenarios[0]
+    measured = sensing.measured
+    inputs, controller, detected = _add_controller(builder, scenarios, state, measured)
+    h = scenario.arm.time_step
+    saturation = AddTorqueSaturation(builder, np.concatenate([s.torque_limits for s in scenarios]))
+    motor = builder.AddNamedSystem("motors", _bank(
+        [MatrixGain(np.diag(s.arm.motor_torque_scale)) for s in scenarios]))
+    dac = (builder.AddNamedSystem("dac", SampleHold(CONTROL_PERIOD, 3, h, count))
+           if h < CONTROL_PERIOD else None)
+    guard = (builder.AddNamedSystem("actuation_guard", FiniteGuard(3, count)) if count > 1
+             else None)
+    identifiers = (AddIdentifiers(builder, scenarios if count > 1 else scenario)
+                   if scenario.identifiers else None)
+    torque = controller["joint_torque_commanded"]
+    if identifiers is not None:
+        for name, port in measured.items():
+            if identifiers.HasInputPort(MEASUREMENTS[name].role):
+                builder.Connect(port, identifiers.GetInputPort(MEASUREMENTS[name].role))
+        if identifiers.HasInputPort("contact_info"):
+            builder.Connect(controller["contact_info"], identifiers.GetInputPort("contact_info"))
+    if "impedance_estimate" in inputs:
+        source = scenario.controller.impedance_source_name()
+        if not source:
+            raise ScenarioError(
+                f"controller '{scenario.controller.name}' reads impedance_estimate: name "
+                "its identifier in controller.impedance_source")
+        connect(builder, identifiers.GetOutputPort(f"impedance_{source}"),
+                inputs["impedance_estimate"])
+    supervisor = None
+    if scenario.safety.enabled:
+        supervisor = AddEnvironments(builder, "safety_supervisor", count, lambda b, i: (
+            system_ports(b.AddNamedSystem("safety_supervisor",
+                                          SafetySupervisor(scenarios[i].safety)))))
+        connect(builder, torque, supervisor["joint_torque_commanded"])
+        for name, port in measured.items():
+            if MEASUREMENTS[name].role in supervisor:
+                connect(builder, port, supervisor[MEASUREMENTS[name].role])
+        builder.Connect(supervisor["joint_torque"], saturation.get_input_port())
     else:
-        saturations = [AddTorqueSaturation(env, s.torque_limits) for env, s in zip(envs, scenarios)]
-        motors = [env.AddNamedSystem("motors", MatrixGain(np.diag(s.arm.motor_torque_scale)))
-                  for env, s in zip(envs, scenarios)]
-        dacs = [env.AddNamedSystem("dac", SampleHold(CONTROL_PERIOD, 3, h))
-                if h < CONTROL_PERIOD else None for env in envs]
-        guards = [env.AddNamedSystem("actuation_guard", FiniteGuard(3)) for env in envs]
-    if shared and scenarios[0].identifiers:
-        identifier_roles = builder.roles(None, AddIdentifiers(builder, _one_or_all(scenarios)))
+        builder.Connect(torque, saturation.get_input_port())
+    drive = _add_fault_chains(builder, scenarios, "drive", saturation.get_output_port(), 3,
+                              physics.clock, physics.active)
+    builder.Connect(drive, motor.get_input_port())
+    applied = motor.get_output_port()
+    if dac is not None:
+        # Between samples the plant steps with the torque of the last sample.
+        builder.Connect(applied, dac.get_input_port())
+        applied = dac.get_output_port()
+    if guard is None:
+        builder.Connect(applied, plant.get_actuation_input_port())
     else:
-        identifier_roles = [AddIdentifiers(env, s) if s.identifiers else None
-                            for env, s in zip(envs, scenarios)]
-    out = []
-    for (env, scenario, own, controller, m, p, arm, saturation, motor, dac, guard,
-         identifiers) in zip(envs, scenarios, inputs, outputs, measured, physics, actuation,
-                             saturations, motors, dacs, guards, identifier_roles):
-        torque = controller["joint_torque_commanded"]
-        if identifiers is not None:
-            for name, port in m.items():
-                if identifiers.HasInputPort(MEASUREMENTS[name].role):
-                    env.Connect(port, identifiers.GetInputPort(MEASUREMENTS[name].role))
-            if identifiers.HasInputPort("contact_info"):
-                env.Connect(controller["contact_info"], identifiers.GetInputPort("contact_info"))
-        if "impedance_estimate" in own:
-            source = scenario.controller.impedance_source_name()
-            if not source:
-                raise ScenarioError(
-                    f"controller '{scenario.controller.name}' reads impedance_estimate: name "
-                    "its identifier in controller.impedance_source")
-            env.Connect(identifiers.GetOutputPort(f"impedance_{source}"),
-                        own["impedance_estimate"])
-        supervisor = None
-        if scenario.safety.enabled:
-            supervisor = env.AddNamedSystem("safety_supervisor",
-                                            SafetySupervisor(scenario.safety))
-            env.Connect(torque, supervisor.GetInputPort("joint_torque_commanded"))
-            for name, port in m.items():
-                if supervisor.HasInputPort(MEASUREMENTS[name].role):
-                    env.Connect(port, supervisor.GetInputPort(MEASUREMENTS[name].role))
-            env.Connect(supervisor.GetOutputPort("joint_torque"), saturation.get_input_port())
-        else:
-            env.Connect(torque, saturation.get_input_port())
-        drive = saturation.get_output_port()
-        if p.faults.clock is not None:
-            drive, active = ChainFaults(env, scenario.faults, "drive", drive, 3, p.faults.clock)
-            p.faults.active |= active
-        env.Connect(drive, motor.get_input_port())
-        applied = motor.get_output_port()
-        if dac is not None:
-            # Between samples the plant steps with the torque of the last sample.
-            env.Connect(applied, dac.get_input_port())
-            applied = dac.get_output_port()
-        if guard is None:
-            env.Connect(applied, arm)
-        else:
-            env.Connect(applied, guard.get_input_port())
-            env.Connect(guard.get_output_port(), arm)
-        out.append(_Control(controller, identifiers, supervisor, torque, applied, detected))
-    return out
+        builder.Connect(applied, guard.get_input_port())
+        builder.Connect(guard.get_output_port(), plant.get_actuation_input_port())
+    return _Control(controller, identifiers, supervisor, torque, applied, detected)
 
 
 def _export_physics(export, state, tip, wall):
@@ -868,12 +606,12 @@ def _export_sensing_and_control(export, scenario, sensing, control, friction):
            "encoder-quantized q, zeroed at q0, after any encoder fault (rad)")
     export("joint_torque_commanded", control.torque, "controller's torque before saturation (N m)")
     if supervisor is not None:
-        export("joint_torque_supervised", supervisor.GetOutputPort("joint_torque"),
+        export("joint_torque_supervised", supervisor["joint_torque"],
                "the safety supervisor's torque, before saturation (N m)")
-        export("safety_state", supervisor.GetOutputPort("safety_state"),
+        export("safety_state", supervisor["safety_state"],
                "the safety supervisor's decision: " + ", ".join(
                    f"{k} {v}" for k, v in SAFETY_STATES.items()))
-        export("safety_stop_reason", supervisor.GetOutputPort("safety_stop_reason"),
+        export("safety_stop_reason", supervisor["safety_stop_reason"],
                "why the supervisor stopped the arm: " + ", ".join(
                    f"{k} {v}" for k, v in STOP_REASONS.items()))
     export("joint_torque_applied", control.applied,
@@ -889,8 +627,8 @@ def _export_measured(export, sensing):
     for name, port in measured.items():
         if MEASUREMENTS[name].station:
             export(name, port, MEASUREMENTS[name].meaning)
-    if dsp.HasOutputPort("force_measured_antialiased"):
-        export("force_measured_antialiased", dsp.GetOutputPort("force_measured_antialiased"),
+    if "force_measured_antialiased" in dsp:
+        export("force_measured_antialiased", dsp["force_measured_antialiased"],
                "second DSP channel through the 190 Hz RC filter (N)")
 
 
@@ -919,18 +657,25 @@ def _export_controller(export, scenario, control):
                        f"identifier {config.name}'s network force f(x) (N)")
 
 
-def _export_faults(export, builder, scenario, faults):
+def _export_faults(export, builder, scenarios, physics):
     """Which fault is on, and the faults' contact clock."""
-    if not scenario.faults:
+    faults = scenarios[0].faults
+    if not faults:
         return
-    flags = builder.AddNamedSystem("fault_flags", Multiplexer(len(scenario.faults)))
-    for i in range(len(scenario.faults)):
-        builder.Connect(faults.active[i], flags.get_input_port(i))
-    export("fault_active", flags.get_output_port(),
+
+    def flags(b, i):
+        mux = b.AddNamedSystem("fault_flags", Multiplexer(len(faults)))
+        return {f"fault_active_{k}": mux.get_input_port(k) for k in range(len(faults))} | {
+            "fault_active": mux.get_output_port()}
+    flagged = AddEnvironments(builder, "fault_flags", len(scenarios), flags)
+    for k in range(len(faults)):
+        builder.Connect(physics.active[k], flagged[f"fault_active_{k}"])
+    export("fault_active", flagged["fault_active"],
            "1 while the scenario's fault i is on, one column per fault in its order",
-           log_as={"fault_active": slice(0, len(scenario.faults))})
-    export("fault_contact_time", faults.clock,
+           log_as={"fault_active": slice(0, len(faults))})
+    export("fault_contact_time", physics.clock,
            "first sample with a true contact force > 5 N, the faults' clock (s; -1 before)")
+
 
 def control_steps_per_plant_step(scenario: Scenario) -> int:
     """How many plant steps make one 1 ms control period."""
@@ -952,22 +697,37 @@ def leaf_systems(diagram):
 _NOISE_KEY_PREFIX = "::run::station::"
 
 
-def _noise_sources(station):
+def _noise_sources(station, gauge_noise) -> list:
     """(environment index, seed key name, source) of every RandomSource of
-    ``station``: the environment is the ``@<i>`` in its path (0 without
-    one), the key its name without it."""
-    for system in leaf_systems(station):
-        if isinstance(system, RandomSource):
-            path = system.GetSystemPathname()
-            found = _ENV_TAG.findall(path)
-            yield (int(found[-1]) if found else 0, _ENV_TAG.sub("", system.get_name()), system)
+    ``station``, from an explicit map: the force sensor's gauge noise i
+    (``gauge_noise``, one per environment in order) is environment i's,
+    every source in block i of an :class:`~drake_contact.blocks.EnvironmentCopies`
+    is environment i's, and in a one-environment station every source is
+    environment 0's. The key is the source's name, without the ``@<i>``
+    the gauge noise of environment i carries in an ensemble."""
+    count = station.num_envs
+    environment_of = {source: i for i, source in enumerate(gauge_noise)} if count > 1 else {}
+    found = []
 
-
-_ENV_TAG = re.compile(r"@(\d+)")
+    def walk(system, env):
+        for child in system.GetSystems():
+            if isinstance(child, EnvironmentCopies):
+                for i, block in enumerate(child.environments):
+                    walk(block, i)
+            elif isinstance(child, Diagram):
+                walk(child, env)
+            elif isinstance(child, RandomSource):
+                own = environment_of.get(child, env)
+                if own is None:
+                    raise ValueError(f"noise source '{child.GetSystemPathname()}' belongs to no "
+                                     "one environment: an ensemble seeds each one's noise apart")
+                found.append((own, child.get_name().removesuffix(f"@{own}"), child))
+    walk(station, 0 if count == 1 else None)
+    return found
 
 
 def _check_unique_noise_names(station):
-    keys = [(env, key) for env, key, _ in _noise_sources(station)]
+    keys = [(env, key) for env, key, _ in station.noise_sources]
     if len(keys) != len(set(keys)):
         raise ValueError("the station's noise sources need unique names in each environment "
                          f"(seeded by name): {keys}")
@@ -979,8 +739,10 @@ def SeedNoise(diagram, context, seed=None):
 
     Each station's systems get their random state from ``seed`` (default:
     its scenario's ``simulation.seed``; in an ensemble, each environment's),
-    and each RandomSource then its own generator, seeded from that seed and
-    the source's name (without its environment's ``@<i>``), so the noise is
+    and each RandomSource then its own generator, seeded from its
+    environment's seed and the source's name (``station.noise_sources``:
+    the environment from the station's explicit map, the name without an
+    ensemble's ``@<i>``), so the noise is
     the same whatever else the diagram holds, however the outer diagram and
     the station are named, whatever controller or identifier is wired in,
     and whether the environment runs alone or in an ensemble. Systems
@@ -992,7 +754,7 @@ def SeedNoise(diagram, context, seed=None):
         seeds = [s.simulation.seed if seed is None else int(seed) for s in station.scenarios]
         station_context = station.GetMyMutableContextFromRoot(context)
         station.SetRandomContext(station_context, RandomGenerator(seeds[0]))
-        for env, name, system in _noise_sources(station):
+        for env, name, system in station.noise_sources:
             key = zlib.crc32((_NOISE_KEY_PREFIX + name).encode())
             system.SetRandomContext(
                 system.GetMyMutableContextFromRoot(context),

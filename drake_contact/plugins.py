@@ -145,6 +145,12 @@ class Declaration:
     # drake_contact.identification.identifiers.AddIdentifiers). Without it
     # an ensemble runs one system per environment.
     ensemble: bool = False
+    # A plug-in that declares ``ensemble``: what one environment's options
+    # mapping switches on, {field: value} (hashable values), which an
+    # ensemble's environments share while their numbers differ; the
+    # structure key (drake_contact.structure.ensemble_structure) carries it,
+    # so environments that differ in it never share an ensemble.
+    structure: Callable | None = None
 
 
 def declare(**fields):

@@ -112,7 +112,10 @@ PER_RUN_FIELDS = (("description",), ("thesis_figures",), ("simulation", "seed"),
 def configuration_structure(scenario) -> str:
     """What a build of ``scenario`` depends on: the scenario as a mapping
     without :data:`PER_RUN_FIELDS`, as JSON text (equal for two scenarios
-    that one build checks alike)."""
+    that one build checks alike). Finer than the ensemble's structure key
+    (:func:`drake_contact.structure.ensemble_structure`), which packs
+    configurations whose numbers differ: a build also checks numbers (the
+    friction's stability at the plant step), so each is built once."""
     data = dc.asdict(scenario)
     for path in PER_RUN_FIELDS:
         parent = data
@@ -348,22 +351,24 @@ MAX_ENSEMBLE = 256
 
 def ensemble_packs(points, size, workers=1) -> list:
     """``points`` (pairs ``(Point, out_dir)``) in packs that run as one
-    ensemble each: points whose scenarios share a plant step, a controller
-    and a duration (an ensemble runs as long as its longest), in their
-    order, at most ``size`` a pack, the packs of a group of even sizes and
+    ensemble each: points whose scenarios share a structure
+    (:func:`drake_contact.structure.ensemble_structure`: the plant step, the
+    controller and what it switches on, the identifiers, the safety
+    supervisor, the signal of each fault, ...) and a duration (an ensemble runs
+    as long as its longest), in their order, at most ``size`` a pack, the packs of a group of even sizes and
     a whole number of them per worker where the group allows (so that
     every worker gets the same work); a pack would be smaller than
     MIN_ENSEMBLE, its points run alone. A point that records a playback, or whose scenario does not
     load, is a pack of its own."""
     from drake_contact.scenario import load_scenario
+    from drake_contact.structure import ensemble_structure
     groups = {}
     for point, out in points:
         key = ("alone", point.name)
         if not point.record:
             try:
                 scenario = load_scenario(point.scenario, point.overrides, seed=point.seed)
-                key = (scenario.arm.time_step, scenario.controller.name,
-                       scenario.simulation.duration)
+                key = (ensemble_structure(scenario), scenario.simulation.duration)
             except Exception:  # noqa: BLE001 - its run writes the failure
                 pass
         groups.setdefault(key, []).append((point, out))

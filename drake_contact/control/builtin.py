@@ -14,11 +14,13 @@ return one system serving all N, every port env-major.
 
 import dataclasses as dc
 from collections.abc import Sequence
+from types import SimpleNamespace
 
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import Adder, ConstantVectorSource, Demultiplexer, Multiplexer
 
 from drake_contact.blocks import environment_configs
+from drake_contact.control import hybrid_controller, nn_compensator
 from drake_contact.control.hybrid_controller import HybridController, HybridControllerConfig
 from drake_contact.control.nn_compensator import NnCompensator, NnCompensatorConfig
 from drake_contact.control.push_controller import ConstantForcePushController, PushConfig
@@ -89,8 +91,25 @@ def _export_hybrid(builder, hybrid, configs):
         builder.Connect(stiffness.get_output_port(), hybrid.GetInputPort("stiffness_estimate"))
 
 
+def _hybrid_structure(options: dict) -> dict:
+    """What the hybrid section ``options`` (checked when the scenario
+    loaded) switches on, as ``hybrid.<field>``: the switches read its fields
+    by name, without building a config (every environment's key is made
+    when an ensemble is built)."""
+    config = SimpleNamespace(**options)
+    return {f"hybrid.{field}": value
+            for field, value in hybrid_controller.structure(config).items()}
+
+
+def _nn_structure(options: dict) -> dict:
+    """The hybrid part's switches and the compensator's (``nn.<switch>``)."""
+    config = SimpleNamespace(**options["nn"])
+    return _hybrid_structure(options["hybrid"]) | {
+        f"nn.{switch}": value for switch, value in nn_compensator.structure(config).items()}
+
+
 @declare(sections=("hybrid",), impedance_source="hybrid.stiffness_source",
-         unlogged=("tip_jacobian",), ensemble=True)
+         unlogged=("tip_jacobian",), ensemble=True, structure=_hybrid_structure)
 def hybrid(options: dict | list):
     """The thesis's hybrid controller; options: the fields of
     :class:`HybridControllerConfig` (a list of them: one system serving an
@@ -155,7 +174,7 @@ class ThesisNnController(Diagram):
 
 
 @declare(sections=("hybrid", "nn"), impedance_source="hybrid.stiffness_source",
-         unlogged=("tip_jacobian",), ensemble=True, signals={
+         unlogged=("tip_jacobian",), ensemble=True, structure=_nn_structure, signals={
              "nn_output": "compensator output n = [n_x (N), n_y (N), n_phi (N m)]",
              "hybrid_torque": "the hybrid part's command tau_h, before J^T n (N m)"})
 def nn(options: dict | list):

@@ -388,14 +388,20 @@ _SWITCHES = {
 }
 
 
+def structure(config) -> dict:
+    """The options ``config`` switches on (:data:`_SWITCHES`), by field: what
+    an ensemble's environments share (their numbers may differ)."""
+    return {field: switch(config) for field, switch in _SWITCHES.items()}
+
+
 def _check_structure(configs, prefix="controller.hybrid"):
     """Raises ScenarioError naming the field if an environment's config
     switches an option on that environment 0's leaves off, or the reverse
     (their numbers may differ)."""
-    first = {field: switch(configs[0]) for field, switch in _SWITCHES.items()}
+    first = structure(configs[0])
     for i, config in enumerate(configs[1:], start=1):
-        for field, switch in _SWITCHES.items():
-            if switch(config) == first[field]:
+        for field, value in structure(config).items():
+            if value == first[field]:
                 continue
             if field == "law":
                 raise ScenarioError(

@@ -158,7 +158,7 @@ def _configs(config):
 _ROBUST_FIELDS = ("leakage", "e_modification", "dead_zone_n", "normalized", "weight_bound")
 
 
-def _switches(config):
+def structure(config):
     """The options a config switches on or off (its structure), by the field
     that switches each."""
     return {"output_layer": config.output_layer,
@@ -172,9 +172,9 @@ def _switches(config):
 def _check_structure(configs, prefix="controller.nn"):
     """Raises ScenarioError naming the field if the configs differ in the
     options they switch on (their numbers may differ)."""
-    first = _switches(configs[0])
+    first = structure(configs[0])
     for i, config in enumerate(configs[1:], start=1):
-        for switch, value in _switches(config).items():
+        for switch, value in structure(config).items():
             if value == first[switch]:
                 continue
             field = switch
@@ -296,7 +296,7 @@ class CompensatorNetwork:
         self._weight_bound = np.array([[c.weight_bound] for c in configs], dtype=float)
         self.normalized = bool(first.normalized)
         self.bounded = first.weight_bound > 0
-        self.robust = _switches(first)["robust"]
+        self.robust = structure(first)["robust"]
         loaded = {}
         for c in configs:
             if c.initial_weights not in loaded:
@@ -479,7 +479,7 @@ class NnCompensationLaw(LeafSystem):
         self._net = net = CompensatorNetwork(
             config if isinstance(config, NnCompensatorConfig) else configs)
         self._count = count = net.count
-        self._learning = _switches(configs[0])["learning"]
+        self._learning = structure(configs[0])["learning"]
         # Targets (N, 2): [y_d, phi_d] per environment.
         self._targets = np.stack([np.broadcast_to(np.asarray(y_desired, dtype=float), count),
                                   np.broadcast_to(np.asarray(phi_desired, dtype=float), count)],

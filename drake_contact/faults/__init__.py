@@ -8,7 +8,7 @@ from importlib.metadata import entry_points
 import drake_contact.faults.builtin  # noqa: F401 - registers the built-in kinds
 from drake_contact.faults.base import (
     CONTACT_CLOCK_FORCE_N, FAULT_KIND_GROUP, FAULT_KINDS, NULL_CASE, SIGNALS, START_FROM,
-    AddFault, ChainFaults, FaultClock, FaultConfig, FaultKind, FaultLaw, StudyCase,
+    AddFault, AddFaultChain, ChainFaults, FaultClock, FaultConfig, FaultKind, FaultLaw, StudyCase,
     register_fault_kind, unregister_fault_kind, validate_faults)
 
 # Other packages' kinds: importing each module named in the group registers them.
@@ -16,6 +16,7 @@ for _entry in entry_points(group=FAULT_KIND_GROUP):
     _entry.load()
 
 __all__ = [
-    "CONTACT_CLOCK_FORCE_N", "FAULT_KIND_GROUP", "FAULT_KINDS", "NULL_CASE", "SIGNALS", "START_FROM", "AddFault", "ChainFaults",
+    "CONTACT_CLOCK_FORCE_N", "FAULT_KIND_GROUP", "FAULT_KINDS", "NULL_CASE", "SIGNALS", "START_FROM", "AddFault", "AddFaultChain",
+    "ChainFaults",
     "FaultClock", "FaultConfig", "FaultKind", "FaultLaw", "StudyCase", "register_fault_kind",
     "unregister_fault_kind", "validate_faults"]

@@ -304,6 +304,30 @@ def FaultClock(threshold_n=CONTACT_CLOCK_FORCE_N):
     return system
 
 
+def AddFaultChain(builder, faults, signal: str, size, *, prefix="fault",
+                  counts_per_revolution=None) -> dict:
+    """Adds the ``faults`` on ``signal`` in series (in the scenario's order;
+    fault i named ``{prefix}_{i}_{kind}``); returns the chain's ports by
+    name: ``signal`` (the first fault's input), ``contact_time`` (every
+    fault's clock input, a list fed together from the FaultClock),
+    ``signal_faulty`` (the last fault's output) and ``fault_active_<i>``
+    (fault i's ``active``). {} when no fault is on ``signal``."""
+    ports = {}
+    for i, fault in enumerate(faults):
+        if fault.signal != signal:
+            continue
+        system = AddFault(builder, fault, size, f"{prefix}_{i}_{fault.kind}",
+                          counts_per_revolution=counts_per_revolution)
+        if ports:
+            builder.Connect(ports["signal_faulty"], system.GetInputPort("signal"))
+        else:
+            ports = {"signal": system.GetInputPort("signal"), "contact_time": []}
+        ports["contact_time"].append(system.GetInputPort("contact_time"))
+        ports["signal_faulty"] = system.GetOutputPort("signal_faulty")
+        ports[f"fault_active_{i}"] = system.GetOutputPort("active")
+    return ports
+
+
 def ChainFaults(builder, faults, signal: str, source, size, clock, *, prefix="fault",
                 counts_per_revolution=None):
     """Puts the ``faults`` on ``signal`` in series after the output port

@@ -53,18 +53,20 @@ Signals an identifier reads (``signals``):
 
 import dataclasses as dc
 import zlib
+from types import SimpleNamespace
 
 import numpy as np
 from scipy import signal
-from pydrake.systems.framework import DiagramBuilder, PortDataType
-from pydrake.systems.primitives import Demultiplexer, Multiplexer
+from pydrake.systems.framework import DiagramBuilder
 
 from drake_contact.arm_axis import LinearSystemBank
-from drake_contact.blocks import AddSubdiagram
+from drake_contact.blocks import AddSubdiagram, EnvironmentCopies, system_ports
 from drake_contact.errors import ScenarioError
 from drake_contact.measured import MEASUREMENTS
 from drake_contact.plant.arm import CONTROL_PERIOD
+from drake_contact.structure import check_ensemble_structure, identifiers_structure
 from drake_contact.sensing.filters import butterworth_digital, digital_filter_system
+from drake_contact.identification import nn_identifier, rls_identifier
 from drake_contact.identification.nn_identifier import NnIdentifier, NnIdentifierConfig
 from drake_contact.identification.rls_identifier import RlsConfig, RlsIdentifier
 from drake_contact.options import config_from_options
@@ -270,7 +272,20 @@ _SOURCES["matched"] = _SOURCES["filtered"]
 _SOURCES["raw_matched"] = _SOURCES["raw"]
 
 
-@declare(sections=("rls",), ensemble=True)
+def _rls_structure(options: dict) -> dict:
+    """What an RLS section ``options`` (checked when the scenario loaded)
+    switches on, as ``rls.<field>``."""
+    config = SimpleNamespace(**options)
+    return {f"rls.{field}": value for field, value in rls_identifier.structure(config).items()}
+
+
+def _nn_structure(options: dict) -> dict:
+    """What a network section ``options`` switches on, as ``nn.<field>``."""
+    config = SimpleNamespace(**options)
+    return {f"nn.{field}": value for field, value in nn_identifier.structure(config).items()}
+
+
+@declare(sections=("rls",), ensemble=True, structure=_rls_structure)
 def rls(options):
     """The built-in RLS identifier (registered as ``rls``); options: the
     fields of :class:`RlsConfig`, or a list of N such mappings (one system
@@ -280,7 +295,7 @@ def rls(options):
     return RlsIdentifier(configs if isinstance(options, list) else configs[0])
 
 
-@declare(sections=("nn",), seeded=True, ensemble=True)
+@declare(sections=("nn",), seeded=True, ensemble=True, structure=_nn_structure)
 def nn(options):
     """The built-in neural identifier (registered as ``nn``); options: the
     fields of :class:`NnIdentifierConfig` and ``seed`` (its initial weights),
@@ -296,54 +311,11 @@ def nn(options):
     return NnIdentifier(configs[0], seeds[0])
 
 
-def _check_shared(scenarios):
-    """Raises ScenarioError (one line) unless the environments' scenarios
-    have the same identifiers: names, kinds, signals and chain models."""
-    def layout(scenario):
-        return [(c.name, c.kind, c.signals, c.chain_model) for c in scenario.identifiers]
-    first = layout(scenarios[0])
-    for i, scenario in enumerate(scenarios[1:], start=1):
-        if layout(scenario) != first:
-            raise ScenarioError(
-                f"identifiers: environment {i} has {layout(scenario)} (name, kind, signals, "
-                f"chain_model) and environment 0 {first}: the environments must share a "
-                "structure")
-
-
-def _copies(systems, name):
-    """N one-environment systems of one plug-in as one sub-diagram ``name``
-    with env-major ports: each input split by a Demultiplexer, each vector
-    output joined by a Multiplexer (for a plug-in that does not declare
-    ``ensemble``)."""
-    builder = DiagramBuilder()
-    count = len(systems)
-    systems = [builder.AddNamedSystem(f"{name}_{i}", s) for i, s in enumerate(systems)]
-    first = systems[0]
-    for p in range(first.num_input_ports()):
-        port = first.get_input_port(p)
-        split = builder.AddNamedSystem(f"{port.get_name()}_split",
-                                       Demultiplexer([port.size()] * count))
-        for i, system in enumerate(systems):
-            builder.Connect(split.get_output_port(i), system.get_input_port(p))
-        builder.ExportInput(split.get_input_port(), port.get_name())
-    for p in range(first.num_output_ports()):
-        port = first.get_output_port(p)
-        if port.get_data_type() != PortDataType.kVectorValued:
-            continue
-        join = builder.AddNamedSystem(f"{port.get_name()}_join",
-                                      Multiplexer([port.size()] * count))
-        for i, system in enumerate(systems):
-            builder.Connect(system.get_output_port(p), join.get_input_port(i))
-        builder.ExportOutput(join.get_output_port(), port.get_name())
-    diagram = builder.Build()
-    diagram.set_name(name)
-    return diagram
-
-
 def _make_identifier(scenarios, index):
     """The identifier system of entry ``index`` for the environments'
     ``scenarios``: one system, or with several environments one serving all
-    when its plug-in declares ``ensemble``, else :func:`_copies`."""
+    when its plug-in declares ``ensemble``, else
+    :class:`~drake_contact.blocks.EnvironmentCopies` of one per environment."""
     configs = [s.identifiers[index] for s in scenarios]
     kind, prefix = configs[0].kind, f"identifiers[{index}]"
     options = [c.factory_options(s.simulation.seed) for c, s in zip(configs, scenarios)]
@@ -351,8 +323,9 @@ def _make_identifier(scenarios, index):
         return MakeIdentifier(kind, options[0], prefix=prefix)
     if identifier_declaration(kind, f"{prefix}.kind").ensemble:
         return MakeIdentifier(kind, options, prefix=prefix, count=len(scenarios))
-    return _copies([MakeIdentifier(kind, o, prefix=prefix) for o in options],
-                   f"identifier_{configs[0].name}")
+    copies = [MakeIdentifier(kind, o, prefix=prefix) for o in options]
+    return EnvironmentCopies(f"identifier_{configs[0].name}", len(copies), lambda builder, i:
+                             system_ports(builder.AddSystem(copies[i])))
 
 
 def AddIdentifiers(builder: DiagramBuilder, scenario, *, name="identifiers"):
@@ -375,7 +348,7 @@ def AddIdentifiers(builder: DiagramBuilder, scenario, *, name="identifiers"):
     scenarios = list(scenario) if isinstance(scenario, (list, tuple)) else [scenario]
     if not scenarios:
         raise ScenarioError("identifiers: no scenarios (one per environment, at least one)")
-    _check_shared(scenarios)
+    check_ensemble_structure(scenarios, identifiers_structure)
     first = scenarios[0]
 
     def build(builder):

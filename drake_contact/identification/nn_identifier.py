@@ -194,7 +194,7 @@ class NnIdentifierConfig:
                                 "are built for the linear output layer")
 
 
-def _switches(config):
+def structure(config):
     """The options a config switches on (its structure: which arithmetic
     runs and the state's shape), by field."""
     return {"output_layer": config.output_layer, "normalization": config.normalization,
@@ -206,7 +206,7 @@ def check_structure(configs, prefix="identifiers.nn"):
     """Raises ScenarioError naming the field if the environments' configs
     differ in an option they switch (their numbers may differ, and so may
     force_offset: an anchor f_s of 0 is the arithmetic without it)."""
-    check_switches(configs, _switches, prefix)
+    check_switches(configs, structure, prefix)
 
 
 def _configs(config):

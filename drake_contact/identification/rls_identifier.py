@@ -172,7 +172,7 @@ def _configs(config, prefix):
     return environment_configs(config, RlsConfig, prefix)
 
 
-def _switches(config):
+def structure(config):
     """The options a config switches on (its structure: the state's shape
     and which arithmetic runs), by field."""
     return {"force_offset": bool(config.force_offset),
@@ -183,7 +183,7 @@ def _switches(config):
 def check_structure(configs, prefix="identifiers.rls"):
     """Raises ScenarioError naming the field if the environments' configs
     differ in an option they switch on (their numbers may differ)."""
-    check_switches(configs, _switches, prefix)
+    check_switches(configs, structure, prefix)
 
 
 class RlsIdentifier(LeafSystem):
