@@ -1,5 +1,6 @@
 """Errors that the command line reports as one line, without a traceback."""
 
+import difflib
 import math
 
 
@@ -14,6 +15,13 @@ class ScenarioError(ValueError):
         # A value as typed may hold a line break (a name 'a\nb'): it is shown
         # escaped, so that the message stays one line.
         super().__init__(str(message).replace("\r", "\\r").replace("\n", "\\n"))
+
+
+def did_you_mean(value, choices) -> str:
+    """``" (did you mean 'x'?)"`` for the choice closest to a mistyped
+    ``value``, or ``""`` when none is close (difflib's ratio under 0.6)."""
+    close = difflib.get_close_matches(str(value), [str(c) for c in choices], n=1, cutoff=0.6)
+    return f" (did you mean '{close[0]}'?)" if close else ""
 
 
 class SimulationDiverged(RuntimeError):

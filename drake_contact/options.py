@@ -9,7 +9,7 @@ import typing
 import yaml
 from pydrake.common.yaml import yaml_load_typed
 
-from drake_contact.errors import ScenarioError
+from drake_contact.errors import ScenarioError, did_you_mean
 
 #: YAML 1.2 floats (``6.2e4``, ``1e-3``), which YAML 1.1 reads as strings.
 YAML12_FLOAT = re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
@@ -30,8 +30,9 @@ def check_schema(schema, data, prefix):
     for key, value in data.items():
         name = f"{prefix}{key}"
         if key not in hints:
-            known = ", ".join(f.name for f in dc.fields(schema))
-            raise ScenarioError(f"{name} is not a scenario key: known keys here are {known}")
+            fields = [f.name for f in dc.fields(schema)]
+            raise ScenarioError(f"{name} is not a scenario key{did_you_mean(key, fields)}: "
+                                f"known keys here are {', '.join(fields)}")
         data[key] = _check_type(hints[key], value, name)
 
 

@@ -54,7 +54,7 @@ from pydrake.systems.framework import (
 from pydrake.systems.primitives import Demultiplexer
 
 from drake_contact.constants import CONTACT_THRESHOLD_N
-from drake_contact.errors import ScenarioError
+from drake_contact.errors import ScenarioError, did_you_mean
 from drake_contact.measured import MEASUREMENTS
 from drake_contact.options import config_from_options
 from drake_contact.plant.arm import DeclareSampledUpdate, is_sample_time
@@ -254,8 +254,9 @@ def _one_line(e: Exception) -> str:
 def _load(found, kind, name, field):
     """(factory, where) of an installed plug-in."""
     if name not in found:
-        raise ScenarioError(f"{field} = '{name}' is not an installed {kind}: "
-                            f"choose one of {', '.join(sorted(found))}")
+        raise ScenarioError(f"{field} = '{name}' is not an installed {kind}"
+                            f"{did_you_mean(name, found)}: choose one of "
+                            f"{', '.join(sorted(found))}")
     where = f"{kind} '{name}' ({found[name].value})"
     try:
         factory = found[name].load()

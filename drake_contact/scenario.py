@@ -22,7 +22,7 @@ from drake_contact.control.force_reference import ForceReferenceConfig
 from drake_contact.sensing.force_sensor import ForceSensorConfig
 from drake_contact.control.hybrid_controller import HybridControllerConfig
 from drake_contact.identification.identifiers import IdentifierConfig, validate_identifiers
-from drake_contact.errors import ScenarioError
+from drake_contact.errors import ScenarioError, did_you_mean
 from drake_contact.faults import FaultConfig, validate_faults
 from drake_contact.control.safety_supervisor import SafetyConfig
 from drake_contact.control.nn_compensator import NnCompensatorConfig
@@ -84,8 +84,8 @@ class ControllerConfig:
         installed = installed_controllers()
         if self.name not in installed:
             raise ScenarioError(
-                f"{prefix}.name = '{self.name}' is unknown: choose one of "
-                f"{', '.join(sorted(installed))}")
+                f"{prefix}.name = '{self.name}' is unknown{did_you_mean(self.name, installed)}: "
+                f"choose one of {', '.join(sorted(installed))}")
         check_configuration(self, controller_declaration(self.name, f"{prefix}.name"), prefix,
                             self.name)
 
@@ -256,9 +256,10 @@ def resolve_scenario_path(name_or_path) -> Path:
     bundled = scenarios_dir() / f"{name_or_path}.yaml"
     if bundled.is_file():
         return bundled
+    names = bundled_scenario_names()
     raise ScenarioError(
-        f"scenario '{name_or_path}' is neither a file nor a bundled scenario: "
-        f"choose a path or one of {', '.join(bundled_scenario_names())}")
+        f"scenario '{name_or_path}' is neither a file nor a bundled scenario"
+        f"{did_you_mean(name_or_path, names)}: choose a path or one of {', '.join(names)}")
 
 
 def load_scenario(source, overrides=(), *, duration=None, seed=None) -> Scenario:

@@ -87,6 +87,32 @@ def test_malformed_file_and_unknown_name_exit_2(tmp_path):
     assert result.returncode == 2 and "Traceback" not in result.stderr
 
 
+@pytest.mark.parametrize("args, hint", [
+    (["run", "identify_styrofom"], "(did you mean 'identify_styrofoam'?)"),
+    (["run", "push_constant", "--set", "environment.stifness=3"], "(did you mean 'stiffness'?)"),
+    (["run", "push_constant", "--set", "controller.name=hybird"], "(did you mean 'hybrid'?)"),
+    (["sweep", "robust_n"], "(did you mean 'robust_nn'?)"),
+    (["run", "push_constant", "--set", "environment.xyzzy=3"], None),
+])
+def test_a_misspelt_name_or_key_gets_a_did_you_mean(tmp_path, args, hint):
+    result = drake_contact(*args, "--out", str(tmp_path / "o"), cwd=tmp_path)
+    assert result.returncode == 2 and result.stderr.count("\n") == 1
+    assert "Traceback" not in result.stderr
+    if hint is None:  # nothing close: no guess
+        assert "did you mean" not in result.stderr
+    else:
+        assert hint in result.stderr
+
+
+def test_version_and_help_read_as_plain_text(tmp_path):
+    from importlib.metadata import version
+    result = drake_contact("--version", cwd=tmp_path)
+    assert result.returncode == 0
+    assert result.stdout.strip() == f"drake-contact {version('drake_contact')}"
+    result = drake_contact("--help", cwd=tmp_path)
+    assert result.returncode == 0 and "``" not in result.stdout and "--version" in result.stdout
+
+
 def test_divergence_exits_3_with_time_and_keeps_logs(tmp_path):
     out = tmp_path / "o"
     result = drake_contact("run", "push_constant", "--out", str(out), "--no-figures",

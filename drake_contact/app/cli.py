@@ -61,6 +61,16 @@ EXIT_FAILED = 1  # reproduce: a thesis result not as expected; a campaign: a run
 EXIT_INTERRUPTED = 130
 
 
+def _version() -> str:
+    """The installed distribution's version (the source tree's when run
+    from a checkout without an install)."""
+    from importlib import metadata
+    try:
+        return metadata.version("drake_contact")
+    except metadata.PackageNotFoundError:
+        return "unknown (not installed)"
+
+
 class _Parser(argparse.ArgumentParser):
     def error(self, message):
         # One line, status 2, like every other bad input.
@@ -68,7 +78,10 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _build_parser():
-    parser = _Parser(prog="drake-contact", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="drake-contact",
+                     description=__doc__.splitlines()[0].replace("``", ""))
+    parser.add_argument("--version", action="version",
+                        version=f"drake-contact {_version()}")
     commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     run = commands.add_parser("run", help="simulate one scenario and write its logs")
     run.add_argument("scenario", help="a scenario file, or a bundled scenario's name")

@@ -59,7 +59,7 @@ from drake_contact.app.campaign import (
     DEFAULT_ENSEMBLE,
     Campaign, CampaignResult, Point, failure_message, finished_metrics, run_campaign, run_status)
 from drake_contact.app.sweep_figures import STATUSES
-from drake_contact.errors import ScenarioError
+from drake_contact.errors import ScenarioError, did_you_mean
 from drake_contact.resources import models_dir
 from drake_contact.scenario import _yaml_load, load_scenario
 
@@ -146,8 +146,10 @@ def load_sweep(source, *, quick=False) -> Sweep:
     if not path.is_file():
         bundled = sweeps_dir() / f"{source}.yaml"
         if not bundled.is_file():
-            raise ScenarioError(f"sweep '{source}' is neither a file nor a bundled sweep: "
-                                f"choose a path or one of {', '.join(bundled_sweep_names())}")
+            names = bundled_sweep_names()
+            raise ScenarioError(f"sweep '{source}' is neither a file nor a bundled sweep"
+                                f"{did_you_mean(source, names)}: choose a path or one of "
+                                f"{', '.join(names)}")
         path = bundled
     try:
         data = _yaml_load(path.read_text()) or {}
