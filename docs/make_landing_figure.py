@@ -17,8 +17,10 @@ OUT = Path(__file__).resolve().parent / "_static" / "force_tracking.png"
 
 
 def main():
-    runs = {name: dc.simulate_scenario(dc.load_scenario(name, duration=26.0, seed=0))
-            for name in ("hybrid_p_only_styrofoam", "nn_styrofoam")}
+    scenarios = {name: dc.load_scenario(name, duration=26.0, seed=0)
+                 for name in ("hybrid_p_only_styrofoam", "nn_styrofoam")}
+    runs = {name: dc.simulate_scenario(scenario) for name, scenario in scenarios.items()}
+    wall = scenarios["nn_styrofoam"].environment.stiffness / 1e3
     fig, ax = plt.subplots(figsize=(7.5, 3.0), dpi=100)
     reference = runs["nn_styrofoam"].log
     start = runs["nn_styrofoam"].metrics["contact_time_s"]
@@ -34,8 +36,8 @@ def main():
     ax.set_ylim(0, 32)
     ax.set_xlabel("time after contact (s)")
     ax.set_ylabel("true contact force (N)")
-    ax.set_title("Styrofoam (7 kN/m): tracking a 20/10 N square wave (thesis Fig 6.11)",
-                 fontsize=10)
+    ax.set_title(f"Styrofoam ({wall:.1f} kN/m): tracking a 20/10 N square wave "
+                 "(thesis Fig 6.11)", fontsize=10)
     ax.legend(loc="upper right", fontsize=8, ncol=3)
     ax.grid(alpha=0.3)
     fig.tight_layout()
