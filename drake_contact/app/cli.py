@@ -110,7 +110,7 @@ def _build_parser():
         "reproduce", help="run every thesis scenario; write the figures and a scored report")
     reproduce.add_argument("--out", required=True, help="output folder")
     reproduce.add_argument("--quick", action="store_true",
-                           help="shorter long runs, no baselines (about 80 s on 2 cores)")
+                           help="shorter long runs, no baselines (about 2 min on 2 idle cores)")
     reproduce.add_argument("--jobs", type=int,
                            help="local Dask workers, runs at a time (default: one per core)")
     _add_ensemble_argument(reproduce)

@@ -58,7 +58,7 @@ reads (M_e, B_e, K_e) at the current operating point x = (xe, xe', xe''):
   K_e = f_hat(xe, 0, 0) / xe, B_e = (f_hat(xe, s_v, 0) - f_hat(xe, 0, 0)) / s_v,
   M_e = (f_hat(xe, s_v, s_a) - f_hat(xe, s_v, 0)) / s_a.
 
-Which readout, measured on identify_any (walls 5-120 kN/m off the issue's
+Which readout, measured on identify_any (walls 5-120 kN/m off the sweep's
 grid): the Jacobian reads K_e near zero (-100 %). After the 50-100 ms switch
 transient the arm rests at one point, so the data pin f_hat there and not its
 slope; and in the transient, with running-max scales, input and target
