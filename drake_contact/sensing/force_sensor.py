@@ -233,7 +233,8 @@ class ForceSensor(LeafSystem):
 
     Each update at t_n simulates the fine ticks of [t_n, t_n + 1 ms): the
     gauge filter (exact, by precomputed powers of its tick matrix), the 480 Hz
-    ADC sample and DAC hold on the tick where it falls, the glitch, and the
+    ADC sample and DAC hold on the tick where it falls, the DAC's ripple and
+    glitch, and the
     output stage. The wrench is the wall's force at t_n, which the plant holds
     over the same interval (at a 1 ms plant step; finer plant steps are seen
     at 1 kHz by the sensor).
@@ -366,8 +367,9 @@ class ForceSensor(LeafSystem):
     def _plan(self, phase, glitch_left):
         """The frame's ADC ticks (the first at -first_tick mod adc_every),
         the lengths of the frame's spans between them (the DAC's holds, per
-        environment), each environment's glitch train (glitch_ticks ticks after each DAC
-        update, carried across frames; flat) and glitch ticks left after it,
+        environment), each environment's DAC artefacts over the frame's ticks
+        (flat: its ripple plus its glitch train, glitch_ticks ticks after each
+        DAC update, carried across frames) and glitch ticks left after it,
         for a frame whose first fine tick is ``phase`` modulo the ADC period,
         with ``glitch_left`` (per environment) glitch ticks carried in. They
         repeat: the plans of every phase are made once."""
@@ -384,13 +386,13 @@ class ForceSensor(LeafSystem):
         # The ripple over the frame's ticks: sin of the tick's phase in the
         # ADC loop (0 at each DAC update), scaled per environment.
         ripple = np.sin(2.0 * np.pi * ((phase + tick) % self._adc_every) / self._adc_every)
-        glitch = (glitch + self._ripple_v[:, None] * ripple).reshape(-1)
-        glitch.flags.writeable = False  # shared by every update of the plan
+        artefacts = (glitch + self._ripple_v[:, None] * ripple).reshape(-1)
+        artefacts.flags.writeable = False  # shared by every update of the plan
         if adc_ticks:
             glitch_left = np.maximum(adc_ticks[-1] + self._glitch_lengths - T, 0)
         else:
             glitch_left = np.maximum(glitch_left - T, 0)
-        return adc_ticks, holds, glitch, glitch_left.astype(float)
+        return adc_ticks, holds, artefacts, glitch_left.astype(float)
 
     def _adc(self, gauges, phi, t):
         """Sample, rotate into the sensor frame, offset, quantize, calibrate:
@@ -455,12 +457,13 @@ class ForceSensor(LeafSystem):
         plan = self._plans.get(key)
         if plan is None:
             plan = self._plans[key] = self._plan(key[0], key[1:])
-        adc_ticks, holds, glitch, glitch_left = plan
+        adc_ticks, holds, artefacts, glitch_left = plan
         P, L, U = self._gauge_filter
         E, H, F, G = self._output_stage
         # The DAC over the frame: the held value, replaced at each ADC tick by
         # its sample (values: each environment's, env-major, one per span),
-        # plus the update glitch (glitch + held is held + glitch: commutative).
+        # plus the DAC's artefacts (artefacts + held is held + artefacts:
+        # commutative).
         values = held
         if adc_ticks:
             spans = len(adc_ticks) + 1
@@ -471,7 +474,7 @@ class ForceSensor(LeafSystem):
                 values[span::spans] = self._adc(self._gauges(x_i), phi,
                                                 t0 + i * self._fine_period)
             held = values[spans - 1::spans]
-        dac = glitch + values.repeat(holds)
+        dac = artefacts + values.repeat(holds)
         updated = state.get_mutable_value(self._internal)
         x_end = updated[self._gauge_field]
         np.add(P[T](x0), L[T](noise), out=x_end)
