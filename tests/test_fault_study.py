@@ -43,8 +43,10 @@ def test_the_table_counts_runs_over_the_limit_and_recoveries():
     off, on = table
     assert (off["runs_past_limit"], off["runs_recovered"], off["peak_force_n_worst"]) == (1, 1, 50.0)
     assert (on["runs_past_limit"], on["runs_recovered"], on["recovery_s_median"]) == (0, 2, 0.4)
+    assert (on["recovery_s_worst"], on["peak_force_n_median"]) == (0.6, 32.5)
     text = markdown(table, ["nn"], Suite(walls=((1.0, 1.0),), cases=("gain",), duration_s=1.0))
-    assert "| gain: " in text and "**1 over**" in text and "rec 2/2 (0.40 s)" in text
+    assert "| gain: " in text and "**1 over**" in text
+    assert "32-35 N, rec 2/2 (0.40, worst 0.60 s)" in text
 
 
 def test_bad_contenders_and_suites_are_refused():

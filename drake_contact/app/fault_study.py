@@ -10,10 +10,10 @@ thesis's 20/10 N square wave on one wall, with one fault of :func:`fault_cases`
 starting :data:`FAULT_START_S` after the first contact, once with the
 supervisor off and once on (``safety.enabled``, the limit
 :data:`FORCE_LIMIT_N`; the same limit says whether a run ended safe either
-way). The walls are points no controller was tuned on; wall i runs with
-noise seed i. Each run is one point of a campaign
+way). The walls are points no controller was tuned on; each runs with
+every noise seed of the suite. Each run is one point of a campaign
 (:func:`drake_contact.app.campaign.run_campaign`, on Dask), into
-``DIR/runs/<contender>/<safety>/<fault>/<wall>/``.
+``DIR/runs/<contender>/<safety>/<fault>/<wall>_seed<seed>/``.
 
 Per run (``runs.csv``): the peak true force from the fault's start to the
 end of the run, whether it went past the limit by more than 10 %, the
@@ -22,7 +22,8 @@ force back within 1 N of f_d for 0.5 s; ``-`` if never), whether the run
 ended safe and the supervisor's stop, if any. ``faults.md`` (and
 ``faults.csv``) has, per fault and contender, off and on: the worst peak
 over the walls, the runs past the limit, the runs recovered and the median
-recovery time, the runs that ended safe.
+recovery time, the runs that ended safe, with the spread of the peaks
+and recovery times over the walls and seeds.
 """
 
 import dataclasses as dc
@@ -63,13 +64,15 @@ SAFETY = ("off", "on")
 
 @dc.dataclass(frozen=True)
 class Suite:
-    # [K_e (N/m), B_e (N s/m)] per wall; wall i runs with noise seed i.
+    # [K_e (N/m), B_e (N s/m)] per wall.
     walls: tuple
     # The fault cases by name; None: every case of fault_cases().
     cases: tuple | None
     # Simulated time per run (s): the slowest approach touches at about
-    # 8.3 s, then FAULT_START_S, the longest fault (2 s) and 2.5 s more.
+    # 9.5 s, then FAULT_START_S, the longest fault (2 s) and 2.5 s more.
     duration_s: float
+    # The noise seeds every wall runs with.
+    seeds: tuple = (0,)
 
     @property
     def case_names(self) -> tuple:
@@ -78,9 +81,9 @@ class Suite:
 
 SUITES = {
     "quick": Suite(walls=((6000.0, 12.0),), cases=("none", "dropout_zero_50ms"),
-                   duration_s=16.5),
+                   duration_s=17.5),
     "standard": Suite(walls=((6000.0, 12.0), (25000.0, 90.0), (80000.0, 45.0)),
-                      cases=None, duration_s=18.5),
+                      cases=None, duration_s=19.5, seeds=(0, 1, 2, 3, 4)),
 }
 
 
@@ -92,11 +95,12 @@ class Run:
     wall: int
     stiffness: float
     damping: float
+    seed: int = 0
 
     @property
     def path(self) -> str:
         return (f"{self.contender}/{self.safety}/{self.case}/"
-                f"wall{self.wall}_K{self.stiffness:g}_B{self.damping:g}")
+                f"wall{self.wall}_K{self.stiffness:g}_B{self.damping:g}_seed{self.seed}")
 
     def overrides(self, suite: Suite) -> list:
         fault = {"start_s": FAULT_START_S, "start_from": "contact"} | fault_cases()[self.case][1]
@@ -110,15 +114,16 @@ class Run:
 
 
 def plan(contenders, suite: Suite) -> list:
-    return [Run(c, s, case, i, k, b) for c in contenders for s in SAFETY for case in suite.case_names
-            for i, (k, b) in enumerate(suite.walls)]
+    return [Run(c, s, case, i, k, b, seed) for c in contenders for s in SAFETY
+            for case in suite.case_names for i, (k, b) in enumerate(suite.walls)
+            for seed in suite.seeds]
 
 
 def score_run(run: Run, run_dir: Path) -> dict:
     """One row of runs.csv."""
     row = {"contender": run.contender, "safety": run.safety, "fault": run.case,
            "wall": run.wall, "stiffness_n_per_m": run.stiffness,
-           "damping_n_s_per_m": run.damping, "seed": run.wall}
+           "damping_n_s_per_m": run.damping, "seed": run.seed}
     metrics = finished_metrics(run_dir)
     if metrics is None:
         failure = failure_message(run_dir)
@@ -165,21 +170,27 @@ def aggregate(rows, contenders, cases) -> list:
                     "runs_failed": sum(r["status"] == "failed" for r in runs),
                     "runs_diverged": sum(r["status"] == "diverged" for r in runs),
                     "runs_not_finished": sum(r["status"] == "interrupted" for r in runs),
+                    "peak_force_n_median": float(np.median(peaks)) if peaks else None,
                     "peak_force_n_worst": max(peaks) if peaks else None,
                     "runs_past_limit": sum(bool(r["past_limit"]) for r in done),
                     "runs_recovered": len(recovered),
+                    "runs_recovered_within_1s": sum(r <= 1.0 for r in recovered),
                     "recovery_s_median": float(np.median(recovered)) if recovered else None,
+                    "recovery_s_worst": max(recovered) if recovered else None,
                     "contact_losses": sum(r.get("contact_losses") or 0 for r in done),
+                    "runs_with_contact_loss": sum(bool(r.get("contact_losses")) for r in done),
                     "runs_ended_safe": sum(bool(r.get("ended_safe")) for r in done),
                     "runs_stopped": sum(bool(r.get("safety_stop")) for r in done)})
     return table
 
 
 def _cell(e) -> str:
-    peak = "-" if e["peak_force_n_worst"] is None else f"{e['peak_force_n_worst']:.0f}"
-    rec = "-" if e["recovery_s_median"] is None else f"{e['recovery_s_median']:.2f}"
+    peak = ("-" if e["peak_force_n_worst"] is None
+            else f"{e['peak_force_n_median']:.0f}-{e['peak_force_n_worst']:.0f}")
+    rec = ("-" if e["recovery_s_median"] is None
+           else f"{e['recovery_s_median']:.2f}, worst {e['recovery_s_worst']:.2f} s")
     done = e["runs"] - e["runs_failed"] - e["runs_not_finished"]
-    text = f"{peak} N, rec {e['runs_recovered']}/{done} ({rec} s)"
+    text = f"{peak} N, rec {e['runs_recovered']}/{done} ({rec})"
     if e["runs_failed"]:
         text = f"**failed {e['runs_failed']}/{e['runs']}**, " + text
     if e["runs_diverged"]:
@@ -187,7 +198,7 @@ def _cell(e) -> str:
     if e["runs_past_limit"]:
         text += f", **{e['runs_past_limit']} over**"
     if e["contact_losses"]:
-        text += f", {e['contact_losses']} lost"
+        text += f", {e['contact_losses']} lost in {e['runs_with_contact_loss']}"
     if e["runs_stopped"]:
         text += f", {e['runs_stopped']} stopped"
     if e["runs_ended_safe"] < done:
@@ -201,9 +212,11 @@ def markdown(table, contenders, suite: Suite, wall_s=None) -> str:
         "# Faults", "",
         f"Each fault starts {FAULT_START_S:g} s after the first contact (true force > 5 N), "
         f"on the 20/10 N square wave; walls {walls}; limit {FORCE_LIMIT_N:g} N. Per cell, over "
-        "the walls: the worst true force from the fault's start to the end, the runs whose "
+        f"the walls and noise seeds {', '.join(map(str, suite.seeds))}: the true force from "
+        "the fault's start to the end (median-worst of the runs' peaks), the runs whose "
         "tracking recovered (100 ms mean within 1 N of f_d for 0.5 s) and their median "
-        "time from the fault's end, runs more than 10 % over the limit, contact losses, "
+        "and worst time from the fault's end, runs more than 10 % over the limit, contact "
+        "losses (and the runs that had one), "
         "supervisor stops, runs that did not end safe. A failed run (it raised, or its worker "
         "died) has no scores and is counted as failed; a diverged one is scored (past the "
         "limit) and counted apart.", ""]
@@ -249,7 +262,7 @@ class FaultStudy(Campaign):
 
     def points(self):
         return [Point(r.path, self.scenarios[r.contender], tuple(r.overrides(self.suite)),
-                      r.wall) for r in self.runs.values()]
+                      r.seed) for r in self.runs.values()]
 
     def score(self, point, run_dir):
         return {"runs": [score_run(self.runs[point.name], run_dir)]}
@@ -261,7 +274,8 @@ class FaultStudy(Campaign):
         return {"suite": self.suite_name, "force_limit_n": FORCE_LIMIT_N,
                 "fault_start_s": FAULT_START_S,
                 "cases": {c: fault_cases()[c][1] for c in self.suite.case_names},
-                "contenders": self.scenarios, "walls": [list(w) for w in self.suite.walls]}
+                "contenders": self.scenarios, "walls": [list(w) for w in self.suite.walls],
+                "seeds": list(self.suite.seeds)}
 
     def report(self, out, result):
         wall_s = result.startup_s + result.wall_s
