@@ -195,14 +195,16 @@ def _add_fault_chains(builder, scenarios, signal, source, size, clock, active, *
     return chain["signal_faulty"]
 
 
-def _add_controller(builder, scenarios, state, measured):
+def _add_controller(builder, scenarios, state, measured, fault=None):
     """Adds the scenarios' controller (:func:`drake_contact.plugins.MakeController`)
     as ``controller`` (one system serving all environments when its plug-in
     declares ``ensemble``, else one per environment behind the adapter), the
     force reference if it reads ``force_desired``, and the station's contact
     detector if it has no ``contact_info`` but something needs one; connects
     every input by name. ``state``: the plant state port; ``measured``: the
-    MeasuredSignals. Returns ({input name: port}, {signal name: output
+    MeasuredSignals; ``fault``: the safety supervisor's ``force_fault``
+    (None without one: a controller's ``force_fault`` input is left
+    unconnected, which it reads as no fault). Returns ({input name: port}, {signal name: output
     port} of what the station exports from it, whether the station's
     detector says the mode). Every port is environment-major."""
     scenario = scenarios[0]
@@ -220,6 +222,8 @@ def _add_controller(builder, scenarios, state, measured):
     inputs = {n: p for n, p in ports.items() if _is_input(p)}
     outputs = {n: p for n, p in ports.items() if not _is_input(p)}
     sources = dict(measured.items()) | {"plant_state": state}
+    if fault is not None:
+        sources["force_fault"] = fault
     contact = outputs.get("contact_info")
     detected = contact is None
     if contact is None and ("force_desired" in inputs or scenario.identifiers):
@@ -529,7 +533,18 @@ def _add_control(builder, scenarios, state, sensing, physics, plant) -> _Control
     count = len(scenarios)
     scenario = scenarios[0]
     measured = sensing.measured
-    inputs, controller, detected = _add_controller(builder, scenarios, state, measured)
+    supervisor = None
+    if scenario.safety.enabled:
+        # Before the controller: its monitor's flag holds the controller's
+        # and the identifiers' state (force_fault).
+        supervisor = AddEnvironments(builder, "safety_supervisor", count, lambda b, i: (
+            system_ports(b.AddNamedSystem("safety_supervisor",
+                                          SafetySupervisor(scenarios[i].safety)))))
+        for name, port in measured.items():
+            if MEASUREMENTS[name].role in supervisor:
+                connect(builder, port, supervisor[MEASUREMENTS[name].role])
+    fault = supervisor["force_fault"] if supervisor is not None else None
+    inputs, controller, detected = _add_controller(builder, scenarios, state, measured, fault)
     h = scenario.arm.time_step
     saturation = AddTorqueSaturation(builder, np.concatenate([s.torque_limits for s in scenarios]))
     motor = builder.AddNamedSystem("motors", _bank(
@@ -545,6 +560,8 @@ def _add_control(builder, scenarios, state, sensing, physics, plant) -> _Control
         for name, port in measured.items():
             if identifiers.HasInputPort(MEASUREMENTS[name].role):
                 builder.Connect(port, identifiers.GetInputPort(MEASUREMENTS[name].role))
+        if fault is not None and identifiers.HasInputPort("force_fault"):
+            connect(builder, fault, identifiers.GetInputPort("force_fault"))
         if identifiers.HasInputPort("contact_info"):
             builder.Connect(controller["contact_info"], identifiers.GetInputPort("contact_info"))
     if "impedance_estimate" in inputs:
@@ -555,15 +572,8 @@ def _add_control(builder, scenarios, state, sensing, physics, plant) -> _Control
                 "its identifier in controller.impedance_source")
         connect(builder, identifiers.GetOutputPort(f"impedance_{source}"),
                 inputs["impedance_estimate"])
-    supervisor = None
-    if scenario.safety.enabled:
-        supervisor = AddEnvironments(builder, "safety_supervisor", count, lambda b, i: (
-            system_ports(b.AddNamedSystem("safety_supervisor",
-                                          SafetySupervisor(scenarios[i].safety)))))
+    if supervisor is not None:
         connect(builder, torque, supervisor["joint_torque_commanded"])
-        for name, port in measured.items():
-            if MEASUREMENTS[name].role in supervisor:
-                connect(builder, port, supervisor[MEASUREMENTS[name].role])
         builder.Connect(supervisor["joint_torque"], saturation.get_input_port())
     else:
         builder.Connect(torque, saturation.get_input_port())

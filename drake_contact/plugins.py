@@ -75,6 +75,9 @@ STATION_INPUTS = {
                          "environment's action)"),
     "plant_state": (6, "TRUE arm state [q; v] (rad, rad/s): ground truth, for test "
                        "harnesses only (the built-in push)"),
+    "force_fault": (1, "1 while the safety supervisor flags the force reading as "
+                       "implausible (a stuck or dropped-out sensor), else 0: hold the "
+                       "controller's state (unconnected without safety.enabled)"),
 }
 
 
@@ -94,7 +97,8 @@ def identifier_inputs() -> dict:
     ``joint_positions``, ...), and ``contact_info``."""
     return ({m.role: (m.size, m.meaning) for m in MEASUREMENTS.values()} | {
         "contact_info": (4, "[time of the first contact switch (s) or -1, x, y, phi at the "
-                            "switch]: the controller's or the station's detector's")})
+                            "switch]: the controller's or the station's detector's"),
+        "force_fault": STATION_INPUTS["force_fault"]})
 
 
 #: Output ports every controller must have: (size, meaning).

@@ -75,7 +75,7 @@ def test_ports_are_named_and_sized(name):
     # The measured signals as the station names (and logs) them.
     assert inputs == {"tip_pose_measured": 3, "tip_velocity_measured": 3,
                       "joint_positions_estimated": 3, "joint_velocities_estimated": 3,
-                      "force_filtered": 1, "force_desired": 1}
+                      "force_filtered": 1, "force_desired": 1, "force_fault": 1}
     assert outputs == {"joint_torque_commanded": 3, "mode": 1, "contact_info": 4}
 
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from drake_contact.blocks import Layout
-from drake_contact.control import baselines, hybrid_controller, safety_supervisor
+from drake_contact.control import baselines, force_monitor, hybrid_controller, safety_supervisor
 
 
 def test_layout_offsets_follow_the_sizes():
@@ -30,11 +30,13 @@ def test_layout_refuses_bad_fields(fields):
 def test_the_laws_layouts_tile_their_vectors():
     # Every element belongs to exactly one field, and the sizes the ports
     # and Demultiplexers use are the layouts'.
-    for layout in (hybrid_controller._LAW, safety_supervisor._LAW, baselines._LAW):
+    for layout in (hybrid_controller._LAW, safety_supervisor._LAW, baselines._LAW,
+                   force_monitor._STATE):
         covered = np.zeros(layout.size, dtype=int)
         for name in layout.names():
             covered[getattr(layout, name)] += 1
         assert covered.tolist() == [1] * layout.size
     assert hybrid_controller._LAW.size == 27
-    assert safety_supervisor._LAW.size == 21
+    assert safety_supervisor._LAW.size == 20
     assert baselines._LAW.size == 10
+    assert force_monitor._STATE.size == sum(force_monitor.MONITOR_SIZES) == 7

@@ -258,6 +258,50 @@ def test_a_50_ms_dropout_with_and_without_the_supervisor():
     assert blind["recovery_s"] is not None  # the thesis's nn recovers too, here
 
 
+def test_a_frozen_reading_holds_the_controller_and_the_arm_then_hands_back():
+    """500 ms of a reading frozen at its last value (the fault study's
+    dropout_hold_500ms) on the 20 N level: the monitor flags it at the 5th
+    repeat, the controller's command is held from then until the reading
+    has moved again and the filter settled, the arm is held where it was
+    (the true force stays within 2 N of it), and tracking is back within 1 s
+    with no contact lost."""
+    fault = {"kind": "force_dropout_hold", "duration_s": 0.5}
+    _, result = _closed_loop(fault, safety=True, duration=6.4)
+    log, entry = result.log, result.metrics["faults"][0]
+    on = log["fault_active"][:, 0] > 0.5
+    hold = log["safety_state"] == 4
+    first, last = np.flatnonzero(on)[[0, -1]]
+    held = np.flatnonzero(hold)
+    # flagged from the 5th repeat (the fault's first sample repeats the one
+    # before) to the settle's end, 10 samples after the reading moves again
+    assert held[0] == first + 4 and held[-1] == last + 10 and len(held) == held[-1] - held[0] + 1
+    torque = log["joint_torque_commanded"][held]
+    np.testing.assert_array_equal(torque, np.broadcast_to(torque[0], torque.shape))
+    force = log["contact_force_true"]
+    assert np.abs(force[held] - force[first]).max() < 2.0
+    assert entry["contact_losses"] == 0
+    assert entry["recovery_s"] is not None and entry["recovery_s"] <= 1.0
+
+
+@pytest.mark.parametrize("kind", ["surface_retreat", "surface_motion"])
+def test_a_real_loss_of_force_is_never_flagged_as_a_sensor_fault(kind):
+    """A surface that gives way or moves away: the reading drops with the
+    force and goes on moving, so the monitor never flags it and the
+    controller reads the loss (the supervisor's contact-loss hold acts on
+    the retreat)."""
+    _, result = _closed_loop(_case(kind), safety=True, duration=6.9)
+    log = result.log
+    assert not np.any(log["safety_state"] == 4)
+    on = log["fault_active"][:, 0] > 0.5
+    true, read = log["contact_force_true"][on], log["force_filtered"][on]
+    if kind == "surface_retreat":  # 20 N to 0 at once: read within the sensor's lag
+        assert true.min() == 0.0 and read.min() < 1.0
+        assert result.metrics["faults"][0]["contact_losses"] >= 1
+        assert np.any(log["safety_state"] == 3)
+    else:  # followed: read as it is
+        assert np.abs(read - true).max() < 4.0
+
+
 def test_a_new_fault_kind_is_one_class_under_one_registration_line():
     """The documented way to add a fault kind: a FaultKind subclass with
     register_fault_kind on it. Scenario validation, the station's wiring,

@@ -79,7 +79,7 @@ from drake_contact.constants import CONTACT_THRESHOLD_N
 from drake_contact.control.hybrid_controller import read_measured_state
 from drake_contact.errors import ScenarioError
 from drake_contact.plant.arm import (
-    CONTROL_PERIOD, TIME_TOLERANCE_S, DeclareSampledUpdate, is_sample_time)
+    CONTROL_PERIOD, TIME_TOLERANCE_S, DeclareSampledUpdate, held_while_flagged, is_sample_time)
 from drake_contact.plant.planar_arm import solve3
 from drake_contact.measured import by_role
 from drake_contact.plugins import declare
@@ -247,6 +247,9 @@ class _BaselineLaw(LeafSystem):
         self._qdot = self.DeclareVectorInputPort("joint_velocities", 3)
         self._force = self.DeclareVectorInputPort("force", 1)
         self._force_desired = self.DeclareVectorInputPort("force_desired", 1)
+        # The safety supervisor's flag: while it is up, the law holds its
+        # output and state (unconnected: never).
+        self._fault = self.DeclareVectorInputPort("force_fault", 1)
         held = np.zeros(_LAW_STATE + len(self._law_state0))
         held[_INFO] = [-1.0, 0.0, 0.0, 0.0]
         held[_LAW_STATE:] = self._law_state0
@@ -264,8 +267,8 @@ class _BaselineLaw(LeafSystem):
         c = self._config
         held = context.get_discrete_state(self._held).value()
         t = context.get_time()
-        if not is_sample_time(t):
-            value.SetFromVector(held)  # zero-order hold between samples
+        if not is_sample_time(t) or held_while_flagged(self._fault, context) is not None:
+            value.SetFromVector(held)  # zero-order hold between samples, or held
             return
         x, xd, q, qdot = read_measured_state(
             context, self._pose, self._velocity, self._q, self._qdot)

@@ -76,7 +76,8 @@ def _export_hybrid(builder, hybrid, configs):
     station = by_role()
     for role in ("tip_pose", "tip_velocity", "joint_positions", "joint_velocities", "force"):
         builder.ExportInput(hybrid.GetInputPort(role), station[role])
-    builder.ExportInput(hybrid.GetInputPort("force_desired"), "force_desired")
+    for name in ("force_desired", "force_fault"):
+        builder.ExportInput(hybrid.GetInputPort(name), name)
     count = len(configs)
     if configs[0].stiffness_source:
         split = builder.AddNamedSystem("impedance_split", Demultiplexer(3 * count, 1))
@@ -155,8 +156,8 @@ class ThesisNnController(Diagram):
                                 f"{compensator.GetOutputPort('joint_torque').size() // 3} nn "
                                 "configs: give one of each per environment")
         # The compensator reads the same measured pose, force and f_d.
-        station = by_role() | {"force_desired": "force_desired"}
-        for role in ("tip_pose", "force", "force_desired"):
+        station = by_role() | {"force_desired": "force_desired", "force_fault": "force_fault"}
+        for role in ("tip_pose", "force", "force_desired", "force_fault"):
             builder.ConnectInput(station[role], compensator.GetInputPort(role))
         for name in ("tip_jacobian", "mode"):
             builder.Connect(hybrid.GetOutputPort(name), compensator.GetInputPort(name))

@@ -164,7 +164,8 @@ from drake_contact.arm_axis import arm_axis_ops, per_environment
 from drake_contact.blocks import Layout, environment_configs
 from drake_contact.constants import CONTACT_THRESHOLD_N, RATIO_TOLERANCE
 from drake_contact.plant.arm import (
-    CONTROL_PERIOD, LINK_LENGTHS, TIME_TOLERANCE_S, DeclareSampledUpdate, is_sample_time)
+    CONTROL_PERIOD, LINK_LENGTHS, TIME_TOLERANCE_S, DeclareSampledUpdate, held_while_flagged,
+    is_sample_time)
 from drake_contact.control.controller_model import ArmModel, ControllerModelConfig
 from drake_contact.plant.planar_arm import solve3
 from drake_contact.control.policy_spaces import ACTION, apply_action
@@ -530,6 +531,9 @@ class HybridControlLaw(LeafSystem):
         self._force = self.DeclareVectorInputPort("force", count)
         self._force_desired = self.DeclareVectorInputPort("force_desired", count)
         self._stiffness = self.DeclareVectorInputPort("stiffness_estimate", count)
+        # The safety supervisor's flag: while it is up, the law holds its
+        # output and state (unconnected: never).
+        self._fault = self.DeclareVectorInputPort("force_fault", count)
         self._index = _gather(count)
         rows = np.zeros((_LAW_SIZE, count))
         rows[_INFO] = np.array([[-1.0], [0.0], [0.0], [0.0]])
@@ -562,7 +566,11 @@ class HybridControlLaw(LeafSystem):
         if not is_sample_time(t):
             output.SetFromVector(held)  # zero-order hold between samples
             return
+        paused = held_while_flagged(self._fault, context)
         if self._count == 1:
+            if paused is not None:
+                output.SetFromVector(held)
+                return
             x, xd, q, qdot = read_measured_state(
                 context, self._pose, self._velocity, self._q, self._qdot)
             output.SetFromVector(self._law(context, t, held.tolist(), x, xd, q, qdot))
@@ -572,8 +580,11 @@ class HybridControlLaw(LeafSystem):
         x, xd, q, qdot = (list(port.Eval(context).reshape(self._count, 3).T) for port in (
             self._pose, self._velocity, self._q, self._qdot))
         rows = self._rows
-        for e, value in enumerate(self._law(context, t, held[self._index], x, xd, q, qdot)):
+        before = held[self._index]
+        for e, value in enumerate(self._law(context, t, before, x, xd, q, qdot)):
             rows[e] = value
+        if paused is not None:
+            rows[:, paused] = before[:, paused]
         output.get_mutable_value()[self._index] = rows
 
     def _value(self, port, context):

@@ -49,7 +49,8 @@ from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Demultiplexer
 
 from drake_contact.blocks import environment_configs
-from drake_contact.plant.arm import CONTROL_PERIOD, DeclareSampledUpdate, is_sample_time
+from drake_contact.plant.arm import (
+    CONTROL_PERIOD, DeclareSampledUpdate, held_while_flagged, is_sample_time)
 from drake_contact.errors import ScenarioError
 from drake_contact.resources import models_dir
 
@@ -490,6 +491,9 @@ class NnCompensationLaw(LeafSystem):
         self._force = self.DeclareVectorInputPort("force", count)
         self._force_desired = self.DeclareVectorInputPort("force_desired", count)
         self._mode = self.DeclareVectorInputPort("mode", count)
+        # The safety supervisor's flag: while it is up, the compensator holds
+        # its output and state (unconnected: never).
+        self._fault = self.DeclareVectorInputPort("force_fault", count)
         self._weights = self.DeclareDiscreteState(net._w0.ravel())
         self._previous_pose = self.DeclareDiscreteState(3 * count)
         self._held = self.DeclareDiscreteState(6 * count)
@@ -525,7 +529,10 @@ class NnCompensationLaw(LeafSystem):
         held = 6 * count
         weights = context.get_discrete_state(self._i_weights).value()
         value = output.get_mutable_value()
-        if not is_sample_time(context.get_time()):
+        paused = None
+        if is_sample_time(context.get_time()):
+            paused = held_while_flagged(self._fault, context)
+        if not is_sample_time(context.get_time()) or paused is not None and paused.all():
             value[held:] = weights
             value[:held] = context.get_discrete_state(self._i_held).value()
             return
@@ -557,6 +564,10 @@ class NnCompensationLaw(LeafSystem):
         if approaching:  # outside contact: no learning, no compensation
             value[:held].reshape(2, count, 3)[:, approach] = 0.0
             new[approach] = net._w[approach]
+        if paused is not None:  # held: the output and weights of before
+            value[:held].reshape(2, count, 3)[:, paused] = context.get_discrete_state(
+                self._i_held).value().reshape(2, count, 3)[:, paused]
+            new[paused] = weights.reshape(count, CompensatorNetwork.size)[paused]
 
     def _force_target(self, context, f):
         """The force (N) the network is asked for at this contact sample:
@@ -579,16 +590,29 @@ class NnCompensationLaw(LeafSystem):
         held = 6 * self._count
         compensation = self._compensation.Eval(context)
         state.get_mutable_value(self._i_weights)[:] = compensation[held:]
-        state.get_mutable_value(self._i_previous)[:] = self._pose.Eval(context)
         state.get_mutable_value(self._i_held)[:] = compensation[:held]
-        if self._reference_model:  # f_m, forgotten outside contact
-            reference = state.get_mutable_value(self._i_reference)
-            approach = np.less(self._mode.Eval(context), self._halves, self._approach)
-            approaching = np.count_nonzero(approach)
-            if approaching < self._count:
-                reference[:] = self._force_target(context, self._force.Eval(context))
-            if approaching:
-                reference[approach] = np.nan
+        paused = held_while_flagged(self._fault, context)
+        if paused is not None:  # the pose and reference of before, too
+            previous = state.get_mutable_value(self._i_previous).reshape(self._count, 3)
+            previous[~paused] = self._pose.Eval(context).reshape(self._count, 3)[~paused]
+            if self._reference_model:
+                reference = state.get_mutable_value(self._i_reference)
+                kept = reference.copy()
+                self._update_reference(context, reference)
+                reference[paused] = kept[paused]
+            return
+        state.get_mutable_value(self._i_previous)[:] = self._pose.Eval(context)
+        if self._reference_model:
+            self._update_reference(context, state.get_mutable_value(self._i_reference))
+
+    def _update_reference(self, context, reference):
+        """f_m at this sample into ``reference``, forgotten outside contact."""
+        approach = np.less(self._mode.Eval(context), self._halves, self._approach)
+        approaching = np.count_nonzero(approach)
+        if approaching < self._count:
+            reference[:] = self._force_target(context, self._force.Eval(context))
+        if approaching:
+            reference[approach] = np.nan
 
 
 class NnCompensator(Diagram):

@@ -268,7 +268,8 @@ class PolicyController(Diagram):
         station = by_role()
         for role in ("tip_pose", "tip_velocity", "joint_positions", "joint_velocities", "force"):
             builder.ExportInput(law.GetInputPort(role), station[role])
-        builder.ExportInput(law.GetInputPort("force_desired"), "force_desired")
+        for name in ("force_desired", "force_fault"):
+            builder.ExportInput(law.GetInputPort(name), name)
         stiffness = builder.AddNamedSystem(
             "stiffness_estimate", ConstantVectorSource([hybrid.stiffness_estimate]))
         builder.Connect(stiffness.get_output_port(), law.GetInputPort("stiffness_estimate"))

@@ -334,7 +334,9 @@ def AddIdentifiers(builder: DiagramBuilder, scenario, *, name="identifiers"):
 
     Inputs: every measured signal (:data:`~drake_contact.measured.MEASUREMENTS`) by
     its role (``force``, ``force_raw``, ``tip_pose``, ...) and
-    ``contact_info`` (4, the hybrid controller's switch record). Outputs, per
+    ``contact_info`` (4, the hybrid controller's switch record), and
+    ``force_fault`` (1, the safety supervisor's flag; unconnected without
+    one) if an identifier reads it. Outputs, per
     identifier ``<id>``: ``impedance_<id>`` (3: [M_e, B_e, K_e], kg, N s/m,
     N/m) and, for the neural network, ``force_estimate_<id>`` (N).
 
@@ -352,7 +354,8 @@ def AddIdentifiers(builder: DiagramBuilder, scenario, *, name="identifiers"):
     first = scenarios[0]
 
     def build(builder):
-        inputs = {m.role: [] for m in MEASUREMENTS.values()} | {"contact_info": []}
+        inputs = {m.role: [] for m in MEASUREMENTS.values()} | {"contact_info": [],
+                                                                "force_fault": []}
         outputs = {}
         filtered = {}   # (signals, chain) -> {input name: filtered port}, built once each
         adders = {"matched": _add_matched_signals, "raw_matched": _add_raw_matched_signals}
@@ -371,7 +374,7 @@ def AddIdentifiers(builder: DiagramBuilder, scenario, *, name="identifiers"):
                 field = sources.get(port_name, port_name)
                 if port_name in own:
                     builder.Connect(own[port_name], port)
-                else:  # contact_info (a sampled system's output), or a measured signal
+                else:  # contact_info, force_fault, or a measured signal
                     inputs[field].append(port)
             outputs[f"impedance_{config.name}"] = system.GetOutputPort("impedance")
             if system.HasOutputPort("force_estimate"):

@@ -96,7 +96,7 @@ import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from drake_contact.blocks import environment_configs
-from drake_contact.plant.arm import CONTROL_PERIOD, DeclareSampledUpdate
+from drake_contact.plant.arm import CONTROL_PERIOD, DeclareSampledUpdate, held_while_flagged
 from drake_contact.errors import ScenarioError
 from drake_contact.arm_axis import check_switches
 from drake_contact.identification.stacked import at, constants, every, products, together
@@ -648,6 +648,9 @@ class NnIdentifier(LeafSystem):
         self._velocity = self.DeclareVectorInputPort("tip_velocity", 3 * count)
         self._acceleration = self.DeclareVectorInputPort("tip_acceleration", 3 * count)
         self._contact = self.DeclareVectorInputPort("contact_info", 4 * count)
+        # The safety supervisor's flag: while it is up, the network and its
+        # estimate are held (unconnected: never).
+        self._fault = self.DeclareVectorInputPort("force_fault", count)
         self._weights = self.DeclareDiscreteState(weights.reshape(-1))
         self._impedance = self.DeclareDiscreteState(
             net.impedance(weights[0] if count == 1 else weights).reshape(-1))
@@ -697,6 +700,13 @@ class NnIdentifier(LeafSystem):
             return
         count, net = self._count, self._net
         started = None if self._one else self._started(contact)
+        paused = held_while_flagged(self._fault, context)
+        if paused is not None:  # held: as before the switch
+            if self._one:
+                return
+            started = ~paused if started is None else started & ~paused
+            if not started.any():
+                return
         x0 = self._pose.Eval(context)[self._x] - contact[self._x_switch]
         x1 = self._velocity.Eval(context)[self._x]
         x2 = self._acceleration.Eval(context)[self._x]

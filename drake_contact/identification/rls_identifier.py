@@ -58,7 +58,8 @@ import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from drake_contact.blocks import environment_configs
-from drake_contact.plant.arm import CONTROL_PERIOD, TIME_TOLERANCE_S, DeclareSampledUpdate
+from drake_contact.plant.arm import (
+    CONTROL_PERIOD, TIME_TOLERANCE_S, DeclareSampledUpdate, held_while_flagged)
 from drake_contact.errors import ScenarioError
 from drake_contact.arm_axis import check_switches
 from drake_contact.identification.stacked import at, constants, every, products
@@ -221,6 +222,9 @@ class RlsIdentifier(LeafSystem):
         self._velocity = self.DeclareVectorInputPort("tip_velocity", 3 * count)
         self._acceleration = self.DeclareVectorInputPort("tip_acceleration", 3 * count)
         self._contact = self.DeclareVectorInputPort("contact_info", 4 * count)
+        # The safety supervisor's flag: while it is up, the estimate is held
+        # (unconnected: never).
+        self._fault = self.DeclareVectorInputPort("force_fault", count)
         self._impedance = self.DeclareDiscreteState(
             np.concatenate([init.theta[:3] for init in inits]))
         self._state = self.DeclareDiscreteState(
@@ -290,6 +294,13 @@ class RlsIdentifier(LeafSystem):
             return
         count = self._count
         started = None if self._one else self._started(contact)
+        paused = held_while_flagged(self._fault, context)
+        if paused is not None:  # held: as before the switch
+            if self._one:
+                return
+            started = ~paused if started is None else started & ~paused
+            if not started.any():
+                return
         # RlsEstimator.step's arithmetic, operation for operation, in the
         # buffers: theta and P (a copy of the state), phi, the new state.
         self._values.reshape(-1)[:] = context.get_discrete_state(self._i_state).value()

@@ -91,6 +91,17 @@ def is_sample_time(t: float) -> bool:
             and abs(t - round(t / CONTROL_PERIOD) * CONTROL_PERIOD) <= TIME_TOLERANCE_S)
 
 
+def held_while_flagged(port, context):
+    """Which environments a sampled law holds at this sample: those whose
+    ``force_fault`` input (``port``, one value per environment: the safety
+    supervisor's flag on the force reading) is up. None when none is, or the
+    port is unconnected (no supervisor); else a boolean mask (N,)."""
+    if not port.HasValue(context):
+        return None
+    flags = port.Eval(context) > 0.0
+    return flags if flags.any() else None
+
+
 #: Link lengths a_i (m), masses m_i (kg), COM offsets S_ix (m), Izz (kg m^2).
 LINK_LENGTHS = (0.2207, 0.1603, 0.1508)
 LINK_MASSES = (12.88, 5.95, 0.44)
