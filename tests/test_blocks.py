@@ -39,4 +39,4 @@ def test_the_laws_layouts_tile_their_vectors():
     assert hybrid_controller._LAW.size == 27
     assert safety_supervisor._LAW.size == 20
     assert baselines._LAW.size == 10
-    assert force_monitor._STATE.size == sum(force_monitor.MONITOR_SIZES) == 7
+    assert force_monitor._STATE.size == 6

@@ -25,8 +25,7 @@ class Monitor:
 
     def step(self, raw, force=20.0):
         self.context.SetTime(self.k * CONTROL_PERIOD)
-        self.system.GetInputPort("force_raw").FixValue(self.context, [raw])
-        self.system.GetInputPort("force").FixValue(self.context, [force])
+        self.system.get_input_port().FixValue(self.context, [raw, force])
         flag = self.system.get_output_port().Eval(self.context)[0]
         ApplySampledUpdates(self.system, self.context)
         self.k += 1

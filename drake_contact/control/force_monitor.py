@@ -28,74 +28,54 @@ integrals, estimates and weights) while it is up, and the supervisor holds
 the arm (:mod:`drake_contact.control.safety_supervisor`).
 """
 
-from pydrake.systems.framework import LeafSystem
+from pydrake.symbolic import Variable, if_then_else, logical_and, logical_or
+from pydrake.symbolic import abs as sym_abs, max as sym_max
+from pydrake.systems.primitives import SymbolicVectorSystem
 
 from drake_contact.blocks import Layout
-from drake_contact.plant.arm import DeclareSampledUpdate, is_sample_time
+from drake_contact.plant.arm import CONTROL_PERIOD
 
-# The monitor's output and held state: [flag, then memory].
-_STATE = Layout(("flag", 1), ("raw_prev", 1), ("repeats", 1), ("armed", 1),
-                ("jumped", 1), ("stuck", 1), ("settle", 1))
-#: The monitor output's parts: the flag, the memory (a Demultiplexer's sizes).
-MONITOR_SIZES = [1, _STATE.size - 1]
+# The monitor's state, updated every 1 ms.
+_STATE = Layout(("raw_prev", 1), ("repeats", 1), ("armed", 1), ("jumped", 1), ("stuck", 1),
+                ("settle", 1))
 
 
-class ForceReadingMonitor(LeafSystem):
-    """The flag as one leaf, evaluated at each 1 ms sample from the inputs
-    and held between samples (as the supervisor's law).
+def ForceReadingMonitor(config) -> SymbolicVectorSystem:
+    """The flag as a Drake ``SymbolicVectorSystem`` (no Python per step),
+    updated every 1 ms, its output computed from the state and this
+    sample's inputs.
 
-    Input ports: ``force_raw`` (1, N, the ADC's reading), ``force`` (1, N,
-    filtered: arms the check at the first contact).
-    Output port: ``monitor`` (7): the flag (1.0 while the reading is
-    flagged, else 0.0), then the memory (:data:`MONITOR_SIZES`).
+    Input port (2): [the raw force (N, the ADC's reading), the filtered
+    force (N: arms the check at the first contact)].
+    Output port (1): 1.0 while the reading is flagged, else 0.0.
+    State (6): :data:`_STATE`.
 
     ``config``: a :class:`drake_contact.control.safety_supervisor.SafetyConfig`
     (its ``sensor_*`` fields and ``contact_force_n``); ``sensor_frozen_samples``
-    0 turns the check off."""
-
-    def __init__(self, config):
-        super().__init__()
-        self._frozen = config.sensor_frozen_samples
-        self._jump = config.sensor_jump_n
-        self._settle = config.sensor_settle_samples
-        self._contact = config.contact_force_n
-        self._raw = self.DeclareVectorInputPort("force_raw", 1)
-        self._force = self.DeclareVectorInputPort("force", 1)
-        held = [0.0] * _STATE.size
-        held[_STATE.raw_prev] = float("nan")
-        self._held = self.DeclareDiscreteState(held)
-        self._out = self.DeclareVectorOutputPort(
-            "monitor", _STATE.size, self._calc,
-            prerequisites_of_calc={self._raw.ticket(), self._force.ticket(), self.xd_ticket(),
-                                   self.time_ticket()})
-        DeclareSampledUpdate(self, lambda context, state: state.set_value(
-            self._out.Eval(context)))
-
-    def _calc(self, context, output):
-        held = context.get_discrete_state(self._held).value()
-        if not is_sample_time(context.get_time()) or self._frozen == 0:
-            output.SetFromVector(held)
-            return
-        _, raw_prev, repeats, armed, jumped, stuck, settle = held.tolist()
-        raw = float(self._raw.Eval(context)[0])
-        armed = armed or float(self._force.Eval(context)[0]) > self._contact
-        was_stuck = stuck
-        if raw == raw_prev:
-            repeats += 1
-            # Stuck: repeated long enough, or repeating a jump, or still
-            # the value that was flagged.
-            stuck = armed and (repeats >= self._frozen or jumped or stuck)
-            jumped = False
-        else:
-            repeats = 0
-            stuck = False
-            jumped = self._jump > 0 and abs(raw - raw_prev) > self._jump
-        if stuck:
-            settle = 0
-        elif was_stuck:
-            settle = self._settle  # the sample the reading moves again is the first
-        else:
-            settle = max(settle - 1, 0)
-        flag = stuck or settle > 0
-        output.SetFromVector([float(flag), raw, repeats, float(armed), float(jumped),
-                              float(stuck), float(settle)])
+    0 turns the check off (the output is 0)."""
+    raw, force = Variable("force_raw"), Variable("force")
+    state = [Variable(name) for name in _STATE.names()]
+    raw_prev, repeats, armed, jumped, stuck, settle = state
+    same = raw == raw_prev
+    armed_now = if_then_else(force > config.contact_force_n, 1.0, armed)
+    repeats_now = if_then_else(same, repeats + 1.0, 0.0)
+    if config.sensor_frozen_samples == 0:
+        stuck_now = 0.0 * raw
+    else:
+        # Stuck: repeated long enough, or repeating a jump, or still the
+        # value that was flagged (armed by the first contact).
+        repeated = logical_or(repeats_now >= config.sensor_frozen_samples,
+                              logical_or(jumped > 0.5, stuck > 0.5))
+        stuck_now = if_then_else(logical_and(same, logical_and(armed_now > 0.5, repeated)),
+                                 1.0, 0.0)
+    jumped_now = (0.0 * raw if config.sensor_jump_n == 0 else if_then_else(
+        logical_and(raw != raw_prev, sym_abs(raw - raw_prev) > config.sensor_jump_n), 1.0, 0.0))
+    # The sample the reading moves again is the settle's first.
+    settle_now = if_then_else(stuck_now > 0.5, 0.0, if_then_else(
+        stuck > 0.5, float(config.sensor_settle_samples), sym_max(settle - 1.0, 0.0)))
+    flag = if_then_else(logical_or(stuck_now > 0.5, settle_now > 0.5), 1.0, 0.0)
+    system = SymbolicVectorSystem(
+        state=state, input=[raw, force], output=[flag], time_period=CONTROL_PERIOD,
+        dynamics=[raw, repeats_now, armed_now, jumped_now, stuck_now, settle_now])
+    system.set_name("force_monitor")
+    return system

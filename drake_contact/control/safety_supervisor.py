@@ -50,11 +50,11 @@ import math
 
 import numpy as np
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
-from pydrake.systems.primitives import Demultiplexer
+from pydrake.systems.primitives import Demultiplexer, Multiplexer
 
 from drake_contact.blocks import Layout
 from drake_contact.constants import CONTACT_THRESHOLD_N
-from drake_contact.control.force_monitor import MONITOR_SIZES, ForceReadingMonitor
+from drake_contact.control.force_monitor import ForceReadingMonitor
 from drake_contact.errors import ScenarioError
 from drake_contact.plant.arm import (
     CONTROL_PERIOD, TIME_TOLERANCE_S, DeclareSampledUpdate, is_sample_time)
@@ -369,7 +369,7 @@ class SafetySupervisorLaw(LeafSystem):
 class SafetySupervisor(Diagram):
     """The supervisor: the force reading's monitor
     (:class:`drake_contact.control.force_monitor.ForceReadingMonitor`),
-    :class:`SafetySupervisorLaw` and Demultiplexers.
+    :class:`SafetySupervisorLaw` and a Demultiplexer.
 
     Input ports: those of the law but ``force_fault`` (the monitor's).
     Output ports: ``joint_torque`` (3, N m, to the torque saturation),
@@ -384,9 +384,9 @@ class SafetySupervisor(Diagram):
         builder = DiagramBuilder()
         law = builder.AddNamedSystem("law", SafetySupervisorLaw(config))
         monitor = builder.AddNamedSystem("force_monitor", ForceReadingMonitor(config))
-        flag = builder.AddNamedSystem("force_monitor_outputs", Demultiplexer(MONITOR_SIZES))
-        builder.Connect(monitor.get_output_port(), flag.get_input_port())
-        builder.Connect(flag.get_output_port(0), law.GetInputPort("force_fault"))
+        readings = builder.AddNamedSystem("force_monitor_inputs", Multiplexer(2))
+        builder.Connect(readings.get_output_port(), monitor.get_input_port())
+        builder.Connect(monitor.get_output_port(), law.GetInputPort("force_fault"))
         memory = _LAW.span("q_hold", "over")
         split = builder.AddNamedSystem(
             "outputs", Demultiplexer([3, 1, memory.stop - memory.start, 1]))
@@ -396,10 +396,11 @@ class SafetySupervisor(Diagram):
             if port.get_name() == "force_fault":
                 continue
             index = builder.ExportInput(port, port.get_name())
-            if monitor.HasInputPort(port.get_name()):
-                builder.ConnectInput(index, monitor.GetInputPort(port.get_name()))
+            if port.get_name() in ("force_raw", "force"):  # the monitor's [raw, filtered]
+                builder.ConnectInput(
+                    index, readings.get_input_port(0 if port.get_name() == "force_raw" else 1))
         builder.ExportOutput(split.get_output_port(0), "joint_torque")
         builder.ExportOutput(split.get_output_port(1), "safety_state")
         builder.ExportOutput(split.get_output_port(3), "safety_stop_reason")
-        builder.ExportOutput(flag.get_output_port(0), "force_fault")
+        builder.ExportOutput(monitor.get_output_port(), "force_fault")
         builder.BuildInto(self)

@@ -12,6 +12,7 @@ from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
 from pydrake.multibody.tree import ModelInstanceIndex
 from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import SymbolicVectorSystem
 
 from drake_contact.errors import ScenarioError
 from drake_contact.constants import RATIO_TOLERANCE, TIME_TOLERANCE_S
@@ -62,15 +63,21 @@ def CalcSampledUpdate(system, context):
 def ApplySampledUpdates(system, context):
     """Computes the sample at ``context``'s time for every leaf of
     ``system`` (a leaf or a Diagram, ``context`` its own) declared with
-    :func:`DeclareSampledUpdate`, all from the same context, then stores
-    them in it, as a Simulator does at a sample instant."""
+    :func:`DeclareSampledUpdate`, and every discrete SymbolicVectorSystem
+    (sampled every 1 ms: the faults, the force reading's monitor), all from
+    the same context, then stores them in it, as a Simulator does at a
+    sample instant."""
     leaves = [system] if not hasattr(system, "GetSystems") else list(_leaves(system))
     updates = []
     for leaf in leaves:
+        leaf_context = leaf.GetMyMutableContextFromRoot(context) if leaf is not system \
+            else context
         if hasattr(leaf, "_sampled_update"):
-            leaf_context = leaf.GetMyMutableContextFromRoot(context) if leaf is not system \
-                else context
             updates.append((leaf_context, CalcSampledUpdate(leaf, leaf_context)))
+        elif isinstance(leaf, SymbolicVectorSystem) and leaf.num_discrete_state_groups():
+            values = leaf.AllocateDiscreteVariables()
+            leaf.CalcForcedDiscreteVariableUpdate(leaf_context, values)
+            updates.append((leaf_context, values))
     for leaf_context, values in updates:
         leaf_context.SetDiscreteState(values)
 
