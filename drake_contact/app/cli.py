@@ -303,7 +303,10 @@ def _cmd_run(args):
     m = result.metrics
     print(f"{result.status}: {m['simulated_time_s']:.3f} s simulated in {m['wall_time_s']:.2f} s "
           f"(real-time factor {m['realtime_factor']:.2f}, {m['us_per_step']:.1f} us/step); "
-          f"peak force {m['peak_force_n']:.4g} N; wrote {args.out}"
+          f"peak force {m['peak_force_n']:.4g} N"
+          + (f", steady force {m['steady_force_n']:.4g} N (true, mean of the last "
+             f"{scenario.simulation.settle_window:g} s)" if "steady_force_n" in m else "")
+          + f"; wrote {args.out}"
           + (f" and {args.record}" if args.record else "")
           + (f" and {args.graphviz}" if args.graphviz else ""))
     for warning in m.get("warnings", []):

@@ -363,6 +363,14 @@ def plot_main_signals(log: dict, scenario, out_dir) -> Path:
     t = log["t"]
     fig, axes = _new_figure((8, 9), 4, 1, sharex=True)
     _signal(axes[0], log, "contact_force_true", label="true normal force")
+    if "force_desired" in log:
+        _signal(axes[0], log, "force_desired", label="desired f_d", color="r", ls="--")
+    elif scenario.controller.name == "push":
+        # The push's command: open loop, so the wall gets what the joints'
+        # friction leaves of it.
+        push = scenario.controller.push
+        axes[0].hlines(push.force, push.start_time, t[-1], color="r", ls="--", lw=1,
+                       label=f"commanded push ({push.force:g} N, open loop)")
     axes[0].set_ylabel("force (N)")
     _signal(axes[1], log, "penetration_true", scale=1e3, label="true penetration")
     axes[1].set_ylabel("penetration (mm)")
