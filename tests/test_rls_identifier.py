@@ -217,7 +217,7 @@ def test_system_ports_and_state_sizes():
     sizes = {system.get_input_port(i).get_name(): system.get_input_port(i).size()
              for i in range(system.num_input_ports())}
     assert sizes == {"force": 1, "tip_pose": 3, "tip_velocity": 3, "tip_acceleration": 3,
-                     "contact_info": 4}
+                     "contact_info": 4, "force_fault": 1}
     assert system.num_output_ports() == 1
     assert system.GetOutputPort("impedance").size() == 3
     # theta (3) and P (3 x 3); with the offset theta (4) and P (4 x 4).

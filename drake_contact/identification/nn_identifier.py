@@ -99,7 +99,8 @@ from drake_contact.blocks import environment_configs
 from drake_contact.plant.arm import CONTROL_PERIOD, DeclareSampledUpdate, held_while_flagged
 from drake_contact.errors import ScenarioError
 from drake_contact.arm_axis import check_switches
-from drake_contact.identification.stacked import at, constants, every, products, together
+from drake_contact.identification.stacked import (
+    at, constants, every, products, stepped, together)
 
 HIDDEN = 4
 OUTPUT_LAYERS = ("linear", "sigmoid", "appendix_e")
@@ -700,13 +701,10 @@ class NnIdentifier(LeafSystem):
             return
         count, net = self._count, self._net
         started = None if self._one else self._started(contact)
-        paused = held_while_flagged(self._fault, context)
-        if paused is not None:  # held: as before the switch
-            if self._one:
-                return
-            started = ~paused if started is None else started & ~paused
-            if not started.any():
-                return
+        # A flagged force reading holds the estimate, as before the switch.
+        step, started = stepped(started, held_while_flagged(self._fault, context), self._one)
+        if not step:
+            return
         x0 = self._pose.Eval(context)[self._x] - contact[self._x_switch]
         x1 = self._velocity.Eval(context)[self._x]
         x2 = self._acceleration.Eval(context)[self._x]

@@ -62,7 +62,7 @@ from drake_contact.plant.arm import (
     CONTROL_PERIOD, TIME_TOLERANCE_S, DeclareSampledUpdate, held_while_flagged)
 from drake_contact.errors import ScenarioError
 from drake_contact.arm_axis import check_switches
-from drake_contact.identification.stacked import at, constants, every, products
+from drake_contact.identification.stacked import at, constants, every, products, stepped
 
 
 @dc.dataclass
@@ -294,13 +294,10 @@ class RlsIdentifier(LeafSystem):
             return
         count = self._count
         started = None if self._one else self._started(contact)
-        paused = held_while_flagged(self._fault, context)
-        if paused is not None:  # held: as before the switch
-            if self._one:
-                return
-            started = ~paused if started is None else started & ~paused
-            if not started.any():
-                return
+        # A flagged force reading holds the estimate, as before the switch.
+        step, started = stepped(started, held_while_flagged(self._fault, context), self._one)
+        if not step:
+            return
         # RlsEstimator.step's arithmetic, operation for operation, in the
         # buffers: theta and P (a copy of the state), phi, the new state.
         self._values.reshape(-1)[:] = context.get_discrete_state(self._i_state).value()

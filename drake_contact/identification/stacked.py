@@ -61,3 +61,17 @@ def products(one):
     For one environment both are ``np.dot`` itself (no Python call in
     between: they run several times per sample)."""
     return (np.dot, np.dot) if one else (_matvec, _rowdot)
+
+
+def stepped(started, paused, one):
+    """Which environments an identifier steps at this sample: those past
+    their switch (``started``, (N,); None: all) whose force reading is not
+    flagged (``paused``: :func:`drake_contact.plant.arm.held_while_flagged`).
+    Returns (step, started): step False when none is stepped; started the
+    mask to step by (None: all)."""
+    if paused is None:
+        return True, started
+    if one:
+        return False, None
+    started = ~paused if started is None else started & ~paused
+    return bool(started.any()), started
