@@ -98,6 +98,16 @@ def test_a_sensor_fault_that_lasts_ends_in_a_safe_stop():
     assert bench.system.GetOutputPort("safety_stop_reason").Eval(bench.context)[0] == 4
 
 
+def test_the_stop_counts_the_stuck_reading_not_the_settle_after_it():
+    """Stuck 8 samples, then 20 samples of settle: flagged for longer than
+    the 10 ms stop time, but stuck for less: held, never stopped."""
+    bench = Bench(sensor_frozen_samples=2, sensor_fault_stop_s=0.010, sensor_settle_samples=20)
+    bench.step(tau=[1.0, 0.0, 0.0], force=20.0)
+    states = [bench.step(tau=[1.0, 0.0, 0.0], force=20.0, raw=5.0)[1] for _ in range(10)]
+    states += [bench.step(tau=[1.0, 0.0, 0.0], force=20.0)[1] for _ in range(25)]
+    assert states.count(SENSOR_HOLD) == 8 + 20 and STOPPED not in states
+
+
 @pytest.mark.parametrize("inputs, reason", [
     ({"tau": [np.nan, 0.0, 0.0], "force": 10.0}, 1),
     ({"tau": [0.0, 0.0, 0.0], "force": 70.0}, 2),

@@ -47,7 +47,8 @@ def ForceReadingMonitor(config) -> SymbolicVectorSystem:
 
     Input port (2): [the raw force (N, the ADC's reading), the filtered
     force (N: arms the check at the first contact)].
-    Output port (1): 1.0 while the reading is flagged, else 0.0.
+    Output port (2): [1.0 while the reading is flagged, else 0.0; 1.0
+    while it is stuck (flagged, not counting the settle), else 0.0].
     State (6): :data:`_STATE`.
 
     ``config``: a :class:`drake_contact.control.safety_supervisor.SafetyConfig`
@@ -75,7 +76,7 @@ def ForceReadingMonitor(config) -> SymbolicVectorSystem:
         stuck > 0.5, float(config.sensor_settle_samples), sym_max(settle - 1.0, 0.0)))
     flag = if_then_else(logical_or(stuck_now > 0.5, settle_now > 0.5), 1.0, 0.0)
     system = SymbolicVectorSystem(
-        state=state, input=[raw, force], output=[flag], time_period=CONTROL_PERIOD,
+        state=state, input=[raw, force], output=[flag, stuck_now], time_period=CONTROL_PERIOD,
         dynamics=[raw, repeats_now, armed_now, jumped_now, stuck_now, settle_now])
     system.set_name("force_monitor")
     return system

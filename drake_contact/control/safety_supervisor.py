@@ -8,11 +8,11 @@ through unless one of these acts, checked in this order every 1 ms:
 1. **Safe stop** (latched: the run ends held still). Fires on a non-finite
    controller torque, a filtered force above ``force_limit_n`` for
    ``force_stop_samples`` samples, a tip speed above ``tip_speed_limit_m_s``
-   (after ``speed_check_from_s``), or a sensor fault that lasts longer than
-   ``sensor_fault_stop_s``. The arm is held by a joint PD
-   (``stop_stiffness``, ``stop_damping``) at the joint angles that put the
-   tip ``stop_backoff_m`` back along -x from where it was then, the
-   controller ignored from then on.
+   (after ``speed_check_from_s``), or a force reading stuck (flagged, the
+   settle not counted) longer than ``sensor_fault_stop_s``. The arm is held
+   by a joint PD (``stop_stiffness``, ``stop_damping``) at the joint angles
+   that put the tip ``stop_backoff_m`` back along -x from where it was
+   then, the controller ignored from then on.
 2. **Sensor fault**: the force reading is flagged as implausible by the
    :class:`drake_contact.control.force_monitor.ForceReadingMonitor` (from the
    first contact on: unchanged for ``sensor_frozen_samples`` samples, or a
@@ -112,7 +112,8 @@ class SafetyConfig:
     # The flag stays up this many samples after the reading moves again
     # (the 120 Hz filter's step response is within 1 % after 6 ms).
     sensor_settle_samples: int = 10
-    # A sensor fault longer than this (s) ends in a safe stop.
+    # A reading stuck longer than this (s; from when it is flagged, the
+    # settle not counted) ends in a safe stop.
     sensor_fault_stop_s: float = 1.0
     # After a contact loss: hold (joint PD where it was) or approach (the
     # controller's own approach). Hold measured: nn_robust back within 1 N
@@ -206,7 +207,8 @@ class SafetySupervisorLaw(LeafSystem):
 
     Input ports: joint_torque_commanded (3, N m), force (1, filtered, N),
     force_raw (1, N), joint_positions (3, rad), joint_velocities (3,
-    rad/s), tip_velocity (3, m/s, rad/s), force_fault (1, the monitor's flag).
+    rad/s), tip_velocity (3, m/s, rad/s), force_monitor (2, the monitor's
+    output: [the flag, whether the reading is stuck now]).
     Output port: law (20): [tau (3, N m), safety_state, memory (15), stop reason].
     """
 
@@ -225,7 +227,7 @@ class SafetySupervisorLaw(LeafSystem):
         self._q = self.DeclareVectorInputPort("joint_positions", 3)
         self._qdot = self.DeclareVectorInputPort("joint_velocities", 3)
         self._v_tip = self.DeclareVectorInputPort("tip_velocity", 3)
-        self._fault = self.DeclareVectorInputPort("force_fault", 1)
+        self._monitor = self.DeclareVectorInputPort("force_monitor", 2)
         held = np.zeros(_LAW_SIZE)
         held[[_REFLEX_T, _LOSS_T, _FAULT_T]] = -np.inf
         held[_RAW_PREV] = np.nan
@@ -261,11 +263,14 @@ class SafetySupervisorLaw(LeafSystem):
         if raw != held[_RAW_PREV]:
             out[_TAU_GOOD] = held[_TAU]
             out[_Q_GOOD] = q
-        sensor_fault = self._fault.Eval(context)[0] > 0
+        flag, stuck = self._monitor.Eval(context)
+        sensor_fault = flag > 0
+        # How long the reading has been stuck (the flag's settle samples
+        # after it moves again are not the sensor's fault).
         fault_t = held[_FAULT_T]
-        if sensor_fault and fault_t == -np.inf:
+        if stuck > 0 and fault_t == -np.inf:
             fault_t = t
-        elif not sensor_fault:
+        elif not stuck > 0:
             fault_t = -np.inf
         # Contact loss timer.
         loss_t = held[_LOSS_T]
@@ -280,7 +285,7 @@ class SafetySupervisorLaw(LeafSystem):
         state = int(held[_STATE])
         reason = int(held[_REASON])
         if state != STOPPED:
-            reason = self._stop_reason(tau_cmd, over, t, v, sensor_fault and t - fault_t)
+            reason = self._stop_reason(tau_cmd, over, t, v, stuck > 0 and t - fault_t)
         if reason:
             if state != STOPPED:
                 # Hold the joint angles that put the tip stop_backoff_m back
@@ -369,9 +374,9 @@ class SafetySupervisorLaw(LeafSystem):
 class SafetySupervisor(Diagram):
     """The supervisor: the force reading's monitor
     (:class:`drake_contact.control.force_monitor.ForceReadingMonitor`),
-    :class:`SafetySupervisorLaw` and a Demultiplexer.
+    :class:`SafetySupervisorLaw` and Demultiplexers.
 
-    Input ports: those of the law but ``force_fault`` (the monitor's).
+    Input ports: those of the law but ``force_monitor`` (the monitor's).
     Output ports: ``joint_torque`` (3, N m, to the torque saturation),
     ``safety_state`` (1, :data:`SAFETY_STATES`), ``safety_stop_reason`` (1,
     :data:`STOP_REASONS`) and ``force_fault`` (1: the monitor's flag, which
@@ -386,14 +391,16 @@ class SafetySupervisor(Diagram):
         monitor = builder.AddNamedSystem("force_monitor", ForceReadingMonitor(config))
         readings = builder.AddNamedSystem("force_monitor_inputs", Multiplexer(2))
         builder.Connect(readings.get_output_port(), monitor.get_input_port())
-        builder.Connect(monitor.get_output_port(), law.GetInputPort("force_fault"))
+        builder.Connect(monitor.get_output_port(), law.GetInputPort("force_monitor"))
+        flag = builder.AddNamedSystem("force_monitor_outputs", Demultiplexer(2, 1))
+        builder.Connect(monitor.get_output_port(), flag.get_input_port())
         memory = _LAW.span("q_hold", "over")
         split = builder.AddNamedSystem(
             "outputs", Demultiplexer([3, 1, memory.stop - memory.start, 1]))
         builder.Connect(law.get_output_port(), split.get_input_port())
         for i in range(law.num_input_ports()):
             port = law.get_input_port(i)
-            if port.get_name() == "force_fault":
+            if port.get_name() == "force_monitor":
                 continue
             index = builder.ExportInput(port, port.get_name())
             if port.get_name() in ("force_raw", "force"):  # the monitor's [raw, filtered]
@@ -402,5 +409,5 @@ class SafetySupervisor(Diagram):
         builder.ExportOutput(split.get_output_port(0), "joint_torque")
         builder.ExportOutput(split.get_output_port(1), "safety_state")
         builder.ExportOutput(split.get_output_port(3), "safety_stop_reason")
-        builder.ExportOutput(monitor.get_output_port(), "force_fault")
+        builder.ExportOutput(flag.get_output_port(0), "force_fault")
         builder.BuildInto(self)
