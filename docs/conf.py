@@ -43,7 +43,7 @@ extensions = [
 # .rst first: autosummary writes its generated pages (reStructuredText) with
 # the first suffix.
 source_suffix = {".rst": "restructuredtext", ".md": "myst-nb", ".ipynb": "myst-nb"}
-exclude_patterns = ["_build", "_generated/**", "**.ipynb_checkpoints", "jupyter_execute"]
+exclude_patterns = ["_build", "_generated/**", "results/**", "**.ipynb_checkpoints", "jupyter_execute"]
 
 myst_enable_extensions = ["dollarmath", "colon_fence", "deflist"]
 myst_heading_anchors = 3

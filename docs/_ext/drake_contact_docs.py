@@ -21,6 +21,7 @@ import dataclasses
 import fnmatch
 import importlib
 import inspect
+import json
 import os
 import pkgutil
 import re
@@ -37,6 +38,9 @@ from sphinx.util.docutils import SphinxDirective
 #: elsewhere with DRAKE_CONTACT_DOCS_GENERATED).
 GENERATED = Path(os.environ.get("DRAKE_CONTACT_DOCS_GENERATED")
                  or Path(__file__).resolve().parents[1] / "_generated")
+#: The committed snapshots of the reference results (``docs/results.py``),
+#: read before GENERATED.
+RESULTS = Path(__file__).resolve().parents[1] / "results"
 _SECTIONS_LISTED = "drake_contact_scenario_sections"
 
 
@@ -286,7 +290,8 @@ class Generated(_MarkdownDirective):
 
     def markdown(self):
         study = self.arguments[0]
-        folder = GENERATED / study
+        snapshot = RESULTS / study / "snapshot.json"
+        folder = RESULTS / study if snapshot.exists() else GENERATED / study
         source = folder / self.options.get("file", "report.md")
         command = self.options.get("command", f"python docs/build.py --figures --study {study}")
         if not source.exists():
@@ -300,6 +305,12 @@ class Generated(_MarkdownDirective):
         here = Path(self.env.doc2path(self.env.docname)).parent
         link = Path(os.path.relpath(folder, here)).as_posix()
         parts = [_study_markdown(source.read_text(), link, drop, only)]
+        if snapshot.exists():
+            stamp = json.loads(snapshot.read_text())
+            parts.insert(0, f"*The reference results: measured at commit {stamp['commit']} on "
+                            f"{stamp['date']} (`{stamp['runs']}`, {stamp['refresh_s'] / 60:.0f} "
+                            f"min on 2 cores); refreshed by `{stamp['command']}`.*")
+            self.env.note_dependency(str(snapshot))
         pattern = self.options.get("images")
         if pattern:
             for image in sorted(folder.rglob("*.png")):

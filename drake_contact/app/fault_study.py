@@ -206,7 +206,7 @@ def _cell(e) -> str:
     return text
 
 
-def markdown(table, contenders, suite: Suite, wall_s=None) -> str:
+def markdown(table, contenders, suite: Suite, wall_s=None, resumed=0) -> str:
     walls = ", ".join(f"{k / 1000:g} kN/m & {b:g} N s/m" for k, b in suite.walls)
     lines = [
         "# Faults", "",
@@ -221,7 +221,8 @@ def markdown(table, contenders, suite: Suite, wall_s=None) -> str:
         "died) has no scores and is counted as failed; a diverged one is scored (past the "
         "limit) and counted apart.", ""]
     if wall_s is not None:
-        lines += [f"Ran in {wall_s:.0f} s.", ""]
+        lines += [f"Ran in {wall_s:.0f} s" + (f", resuming a study that had {resumed} runs "
+                                             "finished before" if resumed else "") + ".", ""]
     header = "| fault | " + " | ".join(f"{c} off | {c} on" for c in contenders) + " |"
     lines += [header, "|---|" + "---|" * (2 * len(contenders))]
     cases = fault_cases()
@@ -281,7 +282,8 @@ class FaultStudy(Campaign):
         wall_s = result.startup_s + result.wall_s
         (out / "faults.md").write_text(markdown(
             result.tables["faults"], self.contenders, self.suite,
-            wall_s=wall_s if result.ran and not result.interrupted else None))
+            wall_s=wall_s if result.ran and not result.interrupted else None,
+            resumed=result.skipped))
 
 
 def run_fault_study(out_dir, *, contenders=None, suite="standard", workers=None,
