@@ -105,8 +105,8 @@ def held_while_flagged(port, context):
     port is unconnected (no supervisor); else a boolean mask (N,)."""
     if not port.HasValue(context):
         return None
-    flags = port.Eval(context) > 0.0
-    return flags if flags.any() else None
+    flags = port.Eval(context)
+    return flags > 0.0 if flags.any() else None
 
 
 #: Link lengths a_i (m), masses m_i (kg), COM offsets S_ix (m), Izz (kg m^2).
