@@ -32,6 +32,7 @@ import fnmatch
 import hashlib
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -53,11 +54,35 @@ FIGURE_WIDTH_PX = 1000
 class Study:
     # Its drake-contact arguments (--out is added).
     arguments: tuple
-    # The files of its output folder the snapshot keeps (globs).
+    # The files of its output folder the snapshot keeps (globs), besides the
+    # figures its kept Markdown shows.
     keep: tuple
 
 
+#: The benchmark's contenders, named (its default is every installed
+#: controller plug-in, which would make the study depend on the machine):
+#: the thesis's, the robust ones, the baselines and the two example
+#: plug-ins the test command installs.
+BENCHMARK_CONTENDERS = ("hybrid,hybrid_pi,nn,nn_robust,adaptive_hybrid,admittance,impedance,"
+                        "jt_pi,learned_residual,parallel_force")
+_SWEEP_KEEP = ("maps.md", "results.csv", "sweep.yaml", "map_*.png")
+
 STUDIES = {
+    # The thesis reproduced, seeds 0-2 (the README's main command).
+    "reproduce": Study(("reproduce",),
+                       ("report.md", "claims.csv", "runs.csv", "reproduce.yaml")),
+    "benchmark": Study(("benchmark", "--controllers", BENCHMARK_CONTENDERS,
+                        "--identifiers", "all"),
+                       ("leaderboard.md", "leaderboard.csv", "identifier_leaderboard.csv",
+                        "benchmark.yaml", "figures/*.png")),
+    # The stability maps.
+    "stability_nn": Study(("sweep", "stability_nn"), _SWEEP_KEEP),
+    "stability_hybrid": Study(("sweep", "stability_hybrid"), _SWEEP_KEEP),
+    "identification_accuracy": Study(("sweep", "identification_accuracy"), _SWEEP_KEEP),
+    # The identification and robust-control grids.
+    "identify_any": Study(("sweep", "identify_any"), _SWEEP_KEEP),
+    "robust_nn": Study(("sweep", "robust_nn"), _SWEEP_KEEP),
+    "adaptive_hybrid": Study(("sweep", "adaptive_hybrid"), _SWEEP_KEEP),
     # The robust contenders (the default's thesis hybrid and nn would double
     # its refresh).
     "faults": Study(("faults", "--controllers", "nn_robust,adaptive_hybrid"),
@@ -84,18 +109,33 @@ def physics_fingerprint(golden: Path = GOLDEN) -> str:
     return _digest(part for f in files for part in (f.name.encode(), f.read_bytes()))
 
 
+def _option(arguments: tuple, flag: str, default=None):
+    return arguments[arguments.index(flag) + 1] if flag in arguments else default
+
+
 def definition(name: str) -> dict:
-    """What study ``name`` runs, as plain data."""
+    """What study ``name`` runs, as plain data: its arguments and the
+    campaign's resolved declaration (what it writes as ``<campaign>.yaml``)."""
     arguments = STUDIES[name].arguments
-    if arguments[0] == "faults":
+    command = arguments[0]
+    if command == "faults":
         from drake_contact.app.fault_study import FaultStudy
-        controllers = arguments[arguments.index("--controllers") + 1] \
-            if "--controllers" in arguments else None
-        suite = arguments[arguments.index("--suite") + 1] if "--suite" in arguments \
-            else "standard"
-        return {"arguments": list(arguments),
-                "resolved": FaultStudy(suite, controllers).resolved()}
-    raise KeyError(name)
+        resolved = FaultStudy(_option(arguments, "--suite", "standard"),
+                              _option(arguments, "--controllers")).resolved()
+    elif command == "benchmark":
+        from drake_contact.app.benchmark import BenchmarkCampaign
+        resolved = BenchmarkCampaign(_option(arguments, "--suite", "standard"),
+                                     _option(arguments, "--controllers"),
+                                     _option(arguments, "--identifiers")).resolved()
+    elif command == "sweep":
+        from drake_contact.app.sweep import SweepCampaign, load_sweep
+        resolved = SweepCampaign(load_sweep(arguments[1])).resolved()
+    elif command == "reproduce":
+        from drake_contact.app.reproduce import Reproduction
+        resolved = Reproduction(GENERATED / name, progress=None).resolved()
+    else:
+        raise KeyError(name)
+    return {"arguments": list(arguments), "resolved": resolved}
 
 
 def definition_fingerprint(name: str) -> str:
@@ -129,26 +169,43 @@ def _commit() -> str:
 
 
 def _shrink(source: Path, target: Path):
-    """A copy of the PNG ``source`` at most FIGURE_WIDTH_PX wide."""
+    """A copy of the PNG ``source`` at most FIGURE_WIDTH_PX wide, in 256
+    colours (a plot's lines and text need no more; a third of the bytes)."""
     from PIL import Image
     with Image.open(source) as image:
+        image = image.convert("RGB")
         if image.width > FIGURE_WIDTH_PX:
             height = round(image.height * FIGURE_WIDTH_PX / image.width)
             image = image.resize((FIGURE_WIDTH_PX, height), Image.LANCZOS)
-        image.save(target, optimize=True)
+        image.quantize(256, method=Image.Quantize.MEDIANCUT).save(target, optimize=True)
+
+
+def _linked_figures(markdown: Path, source: Path) -> list[str]:
+    """The local images a kept Markdown file shows, relative to ``source``."""
+    found = []
+    for link in re.findall(r"!\[[^]]*\]\(([^)\s]+)\)", markdown.read_text()):
+        if "://" in link:
+            continue
+        path = (markdown.parent / link).resolve()
+        if path.is_file() and path.is_relative_to(source.resolve()):
+            found.append(path.relative_to(source.resolve()).as_posix())
+    return found
 
 
 def write_snapshot(name: str, source: Path, refresh_s: float, results: Path = RESULTS) -> Path:
-    """Study ``name``'s snapshot from its output folder ``source``."""
+    """Study ``name``'s snapshot from its output folder ``source``: the
+    files its globs name and the figures its kept Markdown shows."""
     target = results / name
     if target.exists():
         shutil.rmtree(target)
     target.mkdir(parents=True)
-    for path in sorted(source.rglob("*")):
-        relative = path.relative_to(source).as_posix()
-        if not path.is_file() or not any(fnmatch.fnmatch(relative, g)
-                                         for g in STUDIES[name].keep):
-            continue
+    kept = {path.relative_to(source).as_posix() for path in source.rglob("*")
+            if path.is_file() and any(fnmatch.fnmatch(path.relative_to(source).as_posix(), g)
+                                      for g in STUDIES[name].keep)}
+    kept |= {figure for relative in list(kept) if relative.endswith(".md")
+             for figure in _linked_figures(source / relative, source)}
+    for relative in sorted(kept):
+        path = source / relative
         (target / relative).parent.mkdir(parents=True, exist_ok=True)
         if path.suffix == ".png":
             _shrink(path, target / relative)
