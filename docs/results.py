@@ -3,6 +3,7 @@
     python docs/results.py                  # every study whose snapshot is stale
     python docs/results.py --study faults   # this study (repeatable), stale or not
     python docs/results.py --check          # which snapshots are stale; exit 1 if any
+    python docs/results.py --readme         # README.md's status, from the reproduction
 
 A study runs with ``drake-contact`` into ``docs/_generated/<study>/`` (not
 committed; a campaign resumes the runs it finished there before), then its
@@ -21,7 +22,8 @@ A snapshot whose fingerprint no longer matches the code is stale:
 ``tests/test_results.py`` fails, naming the command that refreshes it.
 The pages read the snapshot (``docs/_ext/drake_contact_docs.py``'s
 ``generated`` directive), so the site shows results without running
-anything. Run it with the interpreter that has drake_contact installed
+anything; the README's status paragraph is written from the
+reproduction's snapshot. Run it with the interpreter that has drake_contact installed
 (``.venv/bin/python docs/results.py``).
 """
 
@@ -46,6 +48,11 @@ ROOT = DOCS.parent
 GENERATED = DOCS / "_generated"
 RESULTS = DOCS / "results"
 GOLDEN = ROOT / "tests" / "golden"
+README = ROOT / "README.md"
+#: The README's status paragraph lies between these lines, written from the
+#: reproduction's snapshot (:func:`readme_status`).
+STATUS_BEGIN = "<!-- status: written by docs/results.py from docs/results/reproduce -->"
+STATUS_END = "<!-- /status -->"
 #: A snapshot's figures are at most this wide (px).
 FIGURE_WIDTH_PX = 1000
 
@@ -132,7 +139,13 @@ def definition(name: str) -> dict:
         resolved = SweepCampaign(load_sweep(arguments[1])).resolved()
     elif command == "reproduce":
         from drake_contact.app.reproduce import Reproduction
+        from drake_contact.app.claims import CLAIMS
         resolved = Reproduction(GENERATED / name, progress=None).resolved()
+        # The claims it scores: their criteria, deviations and calibrations.
+        resolved["claims"] = [{field.name: getattr(claim, field.name)
+                               for field in dc.fields(claim)
+                               if isinstance(getattr(claim, field.name), (str, int, float))}
+                              for claim in CLAIMS]
     else:
         raise KeyError(name)
     return {"arguments": list(arguments), "resolved": resolved}
@@ -220,6 +233,43 @@ def write_snapshot(name: str, source: Path, refresh_s: float, results: Path = RE
     return target
 
 
+def readme_status(results: Path = RESULTS) -> str:
+    """The README's status paragraph, from the reproduction's snapshot: its
+    claims' verdicts (``claims.csv``, a line per claim and seed)."""
+    import csv
+    stamp = json.loads((results / "reproduce" / "snapshot.json").read_text())
+    with open(results / "reproduce" / "claims.csv", newline="") as stream:
+        lines = list(csv.DictReader(stream))
+    seeds = sorted({int(line["seed"]) for line in lines})
+    claims = {line["id"]: line for line in lines}.values()
+    verdicts = [c["verdict"] for c in claims]
+    calibration = [v for v in verdicts if v.startswith("calibration")]
+    deviations = [c for c in claims if c["verdict"] == "documented deviation"]
+    not_isolated = sum("cause not isolated" in c["cause"].lower() for c in deviations)
+    other = len(verdicts) - len(calibration) - len(deviations) - verdicts.count("reproduced")
+    seed_text = (f"seeds {seeds[0]}-{seeds[-1]}" if seeds == list(range(seeds[0], seeds[-1] + 1))
+                 and len(seeds) > 1 else "seeds " + ", ".join(map(str, seeds)))
+    return (f"**Status** (the reference reproduction, {seed_text}, at {stamp['commit']} on "
+            f"{stamp['date']}): of the thesis's {len(verdicts) - len(calibration)} checkable "
+            f"claims that no calibration decides, {verdicts.count('reproduced')} reproduced on "
+            f"every seed and {len(deviations)} documented deviations with their causes "
+            f"({len(deviations) - not_isolated} shown by an ablation or by the fit, "
+            f"{not_isolated} not isolated, with what was tried), {other} not as expected. "
+            f"The walls are calibrated to the thesis's own readings and the sensor's noise to "
+            f"its observations ({len(calibration)} calibration rows, "
+            f"{sum(v == 'calibration (holds)' for v in calibration)} holding). "
+            f"Details: [The thesis reproduced](docs/reproduction.md).")
+
+
+def readme_with_status(text: str, results: Path = RESULTS) -> str:
+    """``text`` (the README) with its status paragraph written anew."""
+    head, _, rest = text.partition(STATUS_BEGIN + "\n")
+    _, _, tail = rest.partition(STATUS_END)
+    if not rest or not tail and STATUS_END not in rest:
+        raise ValueError(f"README.md has no {STATUS_BEGIN} ... {STATUS_END} block")
+    return f"{head}{STATUS_BEGIN}\n{readme_status(results)}\n{STATUS_END}{tail}"
+
+
 def refresh(name: str) -> int:
     """Runs study ``name`` (resuming) and writes its snapshot."""
     out = GENERATED / name
@@ -235,6 +285,8 @@ def refresh(name: str) -> int:
         print(f"  {name}: exit {status} after {seconds:.0f} s: no snapshot", flush=True)
         return status
     write_snapshot(name, out, seconds)
+    if name == "reproduce":
+        README.write_text(readme_with_status(README.read_text()))
     print(f"  {name}: exit {status}, {seconds:.0f} s; snapshot in "
           f"{(RESULTS / name).relative_to(ROOT)}", flush=True)
     return 0
@@ -246,7 +298,12 @@ def main(argv=None) -> int:
                         help="refresh this study (repeatable), stale or not")
     parser.add_argument("--check", action="store_true",
                         help="list the stale snapshots and exit 1 if any")
+    parser.add_argument("--readme", action="store_true",
+                        help="only write README.md's status from the reproduction's snapshot")
     args = parser.parse_args(argv)
+    if args.readme:
+        README.write_text(readme_with_status(README.read_text()))
+        return 0
     reasons = {name: stale(name) for name in STUDIES}
     if args.check:
         for name, reason in reasons.items():
