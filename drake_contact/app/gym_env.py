@@ -14,7 +14,7 @@ one per reset) on the benchmark's base scenario (the arm, sensor and DSP of
 ``hybrid_pi`` contender has it (K_fp 1, K_fi 0.003, joint 2's drive
 calibrated). An episode runs from the start of the approach through contact
 for ``duration_s`` (default 16 s: the quick suite's; contact comes at about
-8.3 s), one step per ``period_ms`` (default 10 ms, ten 1 ms samples of the
+9.1 s on styrofoam), one step per ``period_ms`` (default 10 ms, ten 1 ms samples of the
 law).
 
 **Observation and action**: :mod:`drake_contact.control.policy_spaces`, the
