@@ -13,7 +13,7 @@ import pytest
 from matplotlib.figure import Figure
 
 from drake_contact.app.sweep_figures import (
-    aggregate, plot_heat_map, plot_metric_line, plot_sweep_map, write_sweep_figures,
+    aggregate, markdown_map, plot_heat_map, plot_metric_line, plot_sweep_map, write_sweep_figures,
     write_sweep_html)
 
 X, Y, Z = "environment.stiffness", "controller.nn.learning_rate", "environment.damping"
@@ -136,6 +136,23 @@ def test_aggregate_sorts_numerically_then_categories():
 
 
 # ------------------------------------------------------------ heat map
+
+
+def test_markdown_maps_a_grid_and_a_line_with_their_bad_runs(rows):
+    grid = markdown_map(rows, METRIC, X, Y, title="RMSE")
+    top = rmse(RATES[0], STIFFNESS[0], 0), rmse(RATES[0], STIFFNESS[0], 1)
+    assert f"| 0.01 | {'%.3g' % np.mean(top)} |" in grid
+    assert f"{'%.3g' % rmse(*LOST, 0)}" in grid and "lost 1/2" in grid
+    assert "diverged 1/2" in grid
+    line = markdown_map(rows, METRIC, X, None, title="RMSE")
+    assert line.startswith("**RMSE** (over seeds; environment.stiffness down)")
+    # One row per stiffness: the mean over rates and seeds, its range, the runs.
+    values = [rmse(r, STIFFNESS[-1], s) for r in RATES for s in SEEDS]
+    assert (f"| {'%.3g' % np.mean(values)} | {'%.3g' % min(values)} to {'%.3g' % max(values)}"
+            f" | 6 |") in line
+    assert line.count("\n| ") == len(STIFFNESS) + 1
+    faceted = markdown_map(rows, METRIC, X, None, facet=Y)
+    assert faceted.count("| runs |") == len(RATES)
 
 
 def test_heat_map_cells_and_crosses(rows):

@@ -345,7 +345,7 @@ def _write_figures(sweep: Sweep, result: CampaignResult, out: Path):
         markdown_map, write_sweep_figures, write_sweep_html)
     figures = write_sweep_figures(result.rows, sweep.maps, out) if sweep.maps else []
     tables = [markdown_map(result.rows, m.metric, m.x, m.y, facet=m.facet, title=m.title)
-              for m in sweep.maps if m.y]
+              for m in sweep.maps]
     (out / "maps.md").write_text("\n".join(summary_lines(sweep, result) + [""] + tables))
     write_sweep_html(out, result.rows, figures, title=sweep.description or "sweep",
                      summary_lines=summary_lines(sweep, result))

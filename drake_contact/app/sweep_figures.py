@@ -788,9 +788,29 @@ def markdown_map(rows, metric, x, y, *, facet="", title="") -> str:
     """A heat map as Markdown tables (one per ``facet`` value): ``y`` down,
     ``x`` across, each cell the mean over seeds and, where runs went wrong,
     how many of them lost contact, diverged or failed (e.g. ``2.31, lost
-    1/3``). For READMEs and notes, where a figure file is not kept."""
+    1/3``). A map with no ``y`` (a line plot) is a table with ``x`` down:
+    the mean over seeds, its range and the runs that went wrong. For READMEs,
+    notes and the documentation's snapshots."""
     facets = _field_values(rows, facet) if facet else [None]
-    x_values, y_values = _field_values(rows, x), _field_values(rows, y)
+    x_values = _field_values(rows, x)
+    if not y:
+        out = [f"**{title or metric}** (over seeds; {x} down)", ""]
+        for value in facets:
+            where = {facet: value} if facet else None
+            stats = aggregate(_select(rows, where), [x], metric)
+            if facet:
+                out += [f"{_value_with_unit(value, facet)}:", ""]
+            out += [f"| {field_label(x)} | mean | min-max | runs |", "|---|---|---|---|"]
+            for xv in x_values:
+                cell = stats.get((_field_value(xv),))
+                spread = ("" if cell is None or cell["count"] == 0 else
+                          "%.3g to %.3g" % (cell["min"], cell["max"]))
+                runs = "" if cell is None else str(cell["n_runs"])
+                out.append(f"| {_format_value(xv, x)} | {_markdown_cell(cell)} | {spread} | "
+                           f"{runs} |")
+            out.append("")
+        return "\n".join(out)
+    y_values = _field_values(rows, y)
     out = [f"**{title or metric}** (mean over seeds; {y} down, {x} across)", ""]
     for value in facets:
         where = {facet: value} if facet else None
