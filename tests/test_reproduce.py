@@ -107,6 +107,24 @@ def test_quick_reproduction_writes_the_figures_and_embeds_them(quick_reproductio
         assert (out / f"identify_{material}" / "seed_0" / "playback.html").stat().st_size > 100_000
 
 
+def test_the_neural_controller_is_reported_window_by_window(tmp_path):
+    """Seed 0's RMSE per 5 s window, its baseline and adaptation; over the
+    seeds the 10-20 s range and each seed's first contact loss."""
+    for seed, (rmse, loss) in enumerate([(1.52, 22.6), (1.49, None)]):
+        folder = tmp_path / "nn_styrofoam" / f"seed_{seed}"
+        folder.mkdir(parents=True)
+        (folder / "metrics.json").write_text(json.dumps({
+            "force_rmse_windows_n": [1.86, 1.62, 1.63, 1.40, 9.01, 3.0], "force_rmse_n": rmse,
+            "baseline_force_rmse_n": 3.22, "adaptation_time_s": 18.0,
+            "contact_losses": 0 if loss is None else 11, "first_contact_loss_s": loss}))
+    table = reproduce.nn_window_table(tmp_path, (0, 1))
+    assert table[0] == "## The neural controller, window by window"
+    assert ("| `nn_styrofoam` | 1.86 | 1.62 | 1.63 | 1.40 | 9.01 | 1.52 | 3.22 | 18.0 | "
+            "1.49 to 1.52 | 22.6, none |") in table
+    assert not any("nn_rubber" in line for line in table)  # not run: no row
+    assert reproduce.nn_window_table(tmp_path / "none", (0,)) == []
+
+
 def test_scoring_marks_missing_runs_as_not_run(tmp_path):
     rows = score(tmp_path)
     assert [r.passed for r in rows] == [None] * len(RESULTS)
