@@ -78,6 +78,8 @@ STUDIES = {
     # The thesis reproduced, seeds 0-2 (the README's main command).
     "reproduce": Study(("reproduce",),
                        ("report.md", "claims.csv", "runs.csv", "reproduce.yaml")),
+    # Fig 6.15 with the thesis's own cause (the tip sticking to the wall).
+    "fig6_15_wall_friction": Study(("sweep", "fig6_15_wall_friction"), _SWEEP_KEEP),
     "benchmark": Study(("benchmark", "--controllers", BENCHMARK_CONTENDERS,
                         "--identifiers", "all"),
                        ("leaderboard.md", "leaderboard.csv", "identifier_leaderboard.csv",
@@ -233,9 +235,11 @@ def write_snapshot(name: str, source: Path, refresh_s: float, results: Path = RE
     return target
 
 
-def readme_status(results: Path = RESULTS) -> str:
+def readme_status(results: Path = RESULTS, *, details: bool = True) -> str:
     """The README's status paragraph, from the reproduction's snapshot: its
-    claims' verdicts (``claims.csv``, a line per claim and seed)."""
+    claims' verdicts (``claims.csv``, a line per claim and seed); the
+    reproduction page shows it too (``details=False``: without the link to
+    that page)."""
     import csv
     stamp = json.loads((results / "reproduce" / "snapshot.json").read_text())
     with open(results / "reproduce" / "claims.csv", newline="") as stream:
@@ -257,8 +261,8 @@ def readme_status(results: Path = RESULTS) -> str:
             f"{not_isolated} not isolated, with what was tried), {other} not as expected. "
             f"The walls are calibrated to the thesis's own readings and the sensor's noise to "
             f"its observations ({len(calibration)} calibration rows, "
-            f"{sum(v == 'calibration (holds)' for v in calibration)} holding). "
-            f"Details: [The thesis reproduced](docs/reproduction.md).")
+            f"{sum(v == 'calibration (holds)' for v in calibration)} holding)."
+            + (" Details: [The thesis reproduced](docs/reproduction.md)." if details else ""))
 
 
 def readme_with_status(text: str, results: Path = RESULTS) -> str:

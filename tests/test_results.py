@@ -53,3 +53,32 @@ def test_a_change_of_a_studys_definition_makes_its_snapshot_stale(monkeypatch, t
 def test_the_snapshots_are_small():
     size = sum(p.stat().st_size for p in (DOCS / "results").rglob("*") if p.is_file())
     assert size < 8e6, f"docs/results/ is {size / 1e6:.1f} MB"
+
+
+def _generated_studies() -> dict:
+    """study -> the pages whose ``generated`` directives show it."""
+    import re
+    found = {}
+    for page in DOCS.rglob("*.md"):
+        if "results" in page.relative_to(DOCS).parts[:1] or "_build" in page.parts:
+            continue
+        for study in re.findall(r"^```\{generated\} (\S+)", page.read_text(), re.M):
+            found.setdefault(study, []).append(page.relative_to(DOCS).as_posix())
+    return found
+
+
+def test_every_study_a_page_shows_has_a_snapshot_and_every_snapshot_is_shown():
+    shown = _generated_studies()
+    assert set(shown) <= set(results.STUDIES), set(shown) - set(results.STUDIES)
+    assert set(results.STUDIES) <= set(shown), set(results.STUDIES) - set(shown)
+    for name in results.STUDIES:
+        assert (DOCS / "results" / name / "snapshot.json").exists(), (
+            f"docs/results/{name} is missing: make it with `{results.refresh_command(name)}`")
+
+
+def test_the_readme_status_is_the_reproductions_snapshot():
+    readme = (DOCS.parent / "README.md").read_text()
+    assert results.readme_with_status(readme) == readme, (
+        "README.md's status is not the reproduction's snapshot: write it with "
+        "`python docs/results.py --readme`")
+    assert results.readme_status().startswith("**Status** (the reference reproduction, seeds 0-2")

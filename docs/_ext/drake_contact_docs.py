@@ -11,9 +11,15 @@ have been made.
 - ``measured-signals``: :data:`drake_contact.measured.MEASUREMENTS`.
 - ``scores``: the metrics registered with
   :func:`drake_contact.scoring.metrics.register_metric`.
-- ``generated STUDY``: a part of a study's Markdown output in
-  ``docs/_generated/STUDY/`` (written by ``python docs/build.py --figures``);
-  when it is not there, a note with the command that makes it.
+- ``reproduction-status``: the README's status paragraph, from the
+  reproduction's snapshot.
+- ``reference-results``: the snapshots, what each runs and how long its
+  refresh took.
+- ``generated STUDY``: a part of a study's Markdown in its reference-results
+  snapshot, ``docs/results/STUDY/`` (committed; made by ``python
+  docs/results.py``), stamped with its commit, date and refresh time. A
+  study with no snapshot is a build warning (an error in the test suite's
+  build) and a note naming the command that makes it.
 """
 
 import ast
@@ -32,15 +38,12 @@ from pathlib import Path
 from docutils import nodes
 from docutils.parsers.rst import directives
 from docutils.statemachine import StringList
+from sphinx.util import logging
 from sphinx.util.docutils import SphinxDirective
 
-#: Where ``docs/build.py --figures`` writes the studies (the tests point it
-#: elsewhere with DRAKE_CONTACT_DOCS_GENERATED).
-GENERATED = Path(os.environ.get("DRAKE_CONTACT_DOCS_GENERATED")
-                 or Path(__file__).resolve().parents[1] / "_generated")
-#: The committed snapshots of the reference results (``docs/results.py``),
-#: read before GENERATED.
+#: The committed snapshots of the reference results (``docs/results.py``).
 RESULTS = Path(__file__).resolve().parents[1] / "results"
+logger = logging.getLogger(__name__)
 _SECTIONS_LISTED = "drake_contact_scenario_sections"
 
 
@@ -193,15 +196,14 @@ class ScoresTable(_MarkdownDirective):
 class ThesisClaims(_MarkdownDirective):
     """The thesis's claims (``drake_contact.app.claims.CLAIMS``): their lines,
     words, runs and criteria from the code; each seed's values and the
-    verdict from the reference reproduction's ``claims.csv`` where one is in
-    the build."""
+    verdict from the reference reproduction's snapshot (its ``claims.csv``)."""
 
     def markdown(self):
         import csv
 
         from drake_contact.app.claims import CLAIMS, TABLE_COLUMNS, claim_cells
 
-        source = GENERATED / "reproduce" / "claims.csv"
+        source = RESULTS / "reproduce" / "claims.csv"
         scored = {}
         if source.exists():
             self.env.note_dependency(str(source))
@@ -218,10 +220,11 @@ class ThesisClaims(_MarkdownDirective):
             entry = scored.get(claim.id, {})
             rows.append(claim_cells(claim) + [entry.get(seed, "not run") for seed in seeds]
                         + ([entry.get("verdict", "not run")] if scored else []))
-        note = ("" if scored else ":::{note}\nThe values and verdicts come from the reference "
-                "reproduction (`docs/_generated/reproduce/claims.csv`), which is not in this "
-                "build; `drake-contact reproduce` writes them to `out/claims.csv`.\n:::\n\n")
-        return note + _table(header, rows)
+        if not scored:
+            logger.warning("the reproduction's snapshot (docs/results/reproduce/claims.csv) "
+                           "is missing: make it with python docs/results.py --study reproduce",
+                           location=self.get_location())
+        return _table(header, rows)
 
 
 class PolicySpaces(_MarkdownDirective):
@@ -277,40 +280,40 @@ def _study_markdown(text: str, folder: str, drop: set, only: set) -> str:
 
 
 class Generated(_MarkdownDirective):
-    """``generated STUDY``: options ``file`` (Markdown in the study's folder,
-    default report.md), ``drop`` (comma-separated sections to leave out) or
-    ``only`` (the sections to keep, without their headings),
-    ``images`` (a glob of figures to show after it), ``command`` (what makes
-    it, shown when it is missing)."""
+    """``generated STUDY``: options ``file`` (Markdown in the study's
+    snapshot, default report.md), ``drop`` (comma-separated sections to
+    leave out) or ``only`` (the sections to keep, without their headings),
+    ``images`` (a glob of figures to show after it)."""
 
     required_arguments = 1
     option_spec = {"file": directives.unchanged, "drop": directives.unchanged,
-                   "only": directives.unchanged,
-                   "images": directives.unchanged, "command": directives.unchanged}
+                   "only": directives.unchanged, "images": directives.unchanged}
 
     def markdown(self):
         study = self.arguments[0]
-        snapshot = RESULTS / study / "snapshot.json"
-        folder = RESULTS / study if snapshot.exists() else GENERATED / study
+        folder = RESULTS / study
+        snapshot = folder / "snapshot.json"
         source = folder / self.options.get("file", "report.md")
-        command = self.options.get("command", f"python docs/build.py --figures --study {study}")
-        if not source.exists():
-            return (":::{note}\nThis part shows a measured study that is not in this build. "
-                    f"Make it with\n\n```bash\n{command}\n```\n\nand build again: it writes "
-                    f"`docs/_generated/{study}/`, which the pages pick up.\n:::")
+        if not snapshot.exists() or not source.exists():
+            command = f"python docs/results.py --study {study}"
+            logger.warning(f"study {study} has no snapshot ({source.relative_to(RESULTS.parent)}"
+                           f" is missing): make it with {command}",
+                           location=self.get_location())
+            return (f":::{{note}}\nThis part shows the study `{study}`, whose reference "
+                    f"results are not in this build. Make them with\n\n```bash\n{command}"
+                    f"\n```\n\nand build again.\n:::")
         self.env.note_dependency(str(source))
+        self.env.note_dependency(str(snapshot))
         drop, only = ({name.strip() for name in self.options.get(key, "").split(",")
                        if name.strip()} for key in ("drop", "only"))
         # Images are named relative to this page, wherever the folder is.
         here = Path(self.env.doc2path(self.env.docname)).parent
         link = Path(os.path.relpath(folder, here)).as_posix()
-        parts = [_study_markdown(source.read_text(), link, drop, only)]
-        if snapshot.exists():
-            stamp = json.loads(snapshot.read_text())
-            parts.insert(0, f"*The reference results: measured at commit {stamp['commit']} on "
-                            f"{stamp['date']} (`{stamp['runs']}`, {stamp['refresh_s'] / 60:.0f} "
-                            f"min on 2 cores); refreshed by `{stamp['command']}`.*")
-            self.env.note_dependency(str(snapshot))
+        stamp = json.loads(snapshot.read_text())
+        parts = [f"*The reference results: measured at commit {stamp['commit']} on "
+                 f"{stamp['date']} (`{stamp['runs']}`, {_duration(stamp['refresh_s'])} on 2 "
+                 f"cores); refreshed by `{stamp['command']}`.*",
+                 _study_markdown(source.read_text(), link, drop, only)]
         pattern = self.options.get("images")
         if pattern:
             for image in sorted(folder.rglob("*.png")):
@@ -318,6 +321,46 @@ class Generated(_MarkdownDirective):
                 if fnmatch.fnmatch(relative, pattern):
                     parts.append(f"![{image.stem}]({link}/{relative})")
         return "\n\n".join(parts)
+
+
+def _results_module():
+    """``docs/results.py`` (the snapshots' registry), imported by path."""
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("docs_results", RESULTS.parent / "results.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+class ReproductionStatus(_MarkdownDirective):
+    """``reproduction-status``: the README's status paragraph, from the
+    reproduction's snapshot."""
+
+    def markdown(self):
+        self.env.note_dependency(str(RESULTS / "reproduce" / "claims.csv"))
+        self.env.note_dependency(str(RESULTS / "reproduce" / "snapshot.json"))
+        return _results_module().readme_status(RESULTS, details=False)
+
+
+class ReferenceResults(_MarkdownDirective):
+    """``reference-results``: every snapshot in ``docs/results/``: the
+    study, what it runs, its refresh's time on 2 cores, commit and date."""
+
+    def markdown(self):
+        rows, total = [], 0
+        for snapshot in sorted(RESULTS.glob("*/snapshot.json")):
+            self.env.note_dependency(str(snapshot))
+            stamp = json.loads(snapshot.read_text())
+            total += stamp["refresh_s"]
+            rows.append((f"`{stamp['study']}`", f"`{stamp['runs']}`",
+                         _duration(stamp["refresh_s"]), stamp["commit"], stamp["date"]))
+        rows.append(("all", f"`python docs/results.py` ({len(rows)} studies)",
+                     _duration(total), "", ""))
+        return _table(["study", "what it runs", "refresh on 2 cores", "commit", "date"], rows)
+
+
+def _duration(seconds: float) -> str:
+    return f"{seconds:.0f} s" if seconds < 120 else f"{seconds / 60:.0f} min"
 
 
 def _reexported_data_doc(app, what, name, obj, options, lines):
@@ -365,6 +408,8 @@ def setup(app):
     app.add_directive("measured-signals", MeasuredSignalsTable)
     app.add_directive("scores", ScoresTable)
     app.add_directive("generated", Generated)
+    app.add_directive("reference-results", ReferenceResults)
+    app.add_directive("reproduction-status", ReproductionStatus)
     app.add_directive("policy-spaces", PolicySpaces)
     app.add_directive("thesis-claims", ThesisClaims)
     app.connect("autodoc-process-docstring", _reexported_data_doc)
