@@ -88,10 +88,16 @@ STUDIES = {
     "stability_nn": Study(("sweep", "stability_nn"), _SWEEP_KEEP),
     "stability_hybrid": Study(("sweep", "stability_hybrid"), _SWEEP_KEEP),
     "identification_accuracy": Study(("sweep", "identification_accuracy"), _SWEEP_KEEP),
-    # The identification and robust-control grids.
+    "stability_nn_robust": Study(("sweep", "stability_nn_robust"), _SWEEP_KEEP),
+    # The identification grids: any wall, and walls that drift or step.
     "identify_any": Study(("sweep", "identify_any"), _SWEEP_KEEP),
+    "identify_any_nn_auto": Study(("sweep", "identify_any_nn_auto"), _SWEEP_KEEP),
+    "identify_drift": Study(("sweep", "identify_drift"), _SWEEP_KEEP),
+    "identify_step": Study(("sweep", "identify_step"), _SWEEP_KEEP),
+    # The robust-control grids, and the thesis's hybrid PI on the same task.
     "robust_nn": Study(("sweep", "robust_nn"), _SWEEP_KEEP),
     "adaptive_hybrid": Study(("sweep", "adaptive_hybrid"), _SWEEP_KEEP),
+    "hybrid_pi_map": Study(("sweep", "hybrid_pi_map"), _SWEEP_KEEP),
     # The robust contenders (the default's thesis hybrid and nn would double
     # its refresh).
     "faults": Study(("faults", "--controllers", "nn_robust,adaptive_hybrid"),

@@ -1,6 +1,6 @@
 """Sphinx directives that write the reference pages from the code, so they
-cannot drift from it, and that show the long studies' results when they
-have been made.
+cannot drift from it, and that show the reference results (the committed
+snapshots of ``docs/results/``).
 
 - ``scenario-fields SECTION``: every field of a scenario section (or, with
   no argument, the top-level fields), its type, its default and the comment
