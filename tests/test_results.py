@@ -82,3 +82,22 @@ def test_the_readme_status_is_the_reproductions_snapshot():
         "README.md's status is not the reproduction's snapshot: write it with "
         "`python docs/results.py --readme`")
     assert results.readme_status().startswith("**Status** (the reference reproduction, seeds 0-2")
+
+
+def test_a_campaign_with_failed_runs_leaves_no_snapshot(monkeypatch, tmp_path):
+    """A campaign exits 1 when runs failed (raised, or their worker died):
+    its results are not reference results. The reproduction exits 1 when a
+    result is not as expected, which its snapshot shows."""
+    import subprocess
+    monkeypatch.setattr(results, "RESULTS", tmp_path / "results")
+    monkeypatch.setattr(results, "GENERATED", tmp_path / "generated")
+    monkeypatch.setattr(results.subprocess, "run",
+                        lambda *a, **k: subprocess.CompletedProcess(a, 1))
+    written = []
+    monkeypatch.setattr(results, "write_snapshot", lambda *a, **k: written.append(a[0]))
+    monkeypatch.setattr(results, "readme_with_status", lambda text, *a: text)
+    assert results.refresh("benchmark") == 1 and written == []
+    assert results.refresh("robust_nn") == 1 and written == []
+    monkeypatch.setattr(results, "README", tmp_path / "README.md")
+    (tmp_path / "README.md").write_text("x")
+    assert results.refresh("reproduce") == 0 and written == ["reproduce"]
