@@ -6,7 +6,8 @@
     python docs/results.py --readme         # README.md's status, from the reproduction
 
 A study runs with ``drake-contact`` into ``docs/_generated/<study>/`` (not
-committed; a campaign resumes the runs it finished there before), then its
+committed; an interrupted refresh resumes the runs it finished there, and
+the folder is removed once the snapshot is written unless ``--keep``), then its
 **snapshot** is written to ``docs/results/<study>/`` (committed): the
 Markdown and CSV tables the pages include, the figures they show as
 web-sized PNGs, and ``snapshot.json``: the commit and date it was made at,
@@ -280,8 +281,10 @@ def readme_with_status(text: str, results: Path = RESULTS) -> str:
     return f"{head}{STATUS_BEGIN}\n{readme_status(results)}\n{STATUS_END}{tail}"
 
 
-def refresh(name: str) -> int:
-    """Runs study ``name`` (resuming) and writes its snapshot."""
+def refresh(name: str, keep: bool = False) -> int:
+    """Runs study ``name`` (resuming what an interrupted refresh left in its
+    output folder) and writes its snapshot; then removes the output folder
+    unless ``keep``."""
     out = GENERATED / name
     command = [sys.executable, "-m", "drake_contact", *STUDIES[name].arguments,
                "--out", str(out)]
@@ -297,6 +300,10 @@ def refresh(name: str) -> int:
     write_snapshot(name, out, seconds)
     if name == "reproduce":
         README.write_text(readme_with_status(README.read_text()))
+    if not keep:
+        # Its run folders hold every run's log (the full refresh writes
+        # about 35 GB); the snapshot has what the pages show.
+        shutil.rmtree(out, ignore_errors=True)
     print(f"  {name}: exit {status}, {seconds:.0f} s; snapshot in {RESULTS / name}", flush=True)
     return 0
 
@@ -307,6 +314,10 @@ def main(argv=None) -> int:
                         help="refresh this study (repeatable), stale or not")
     parser.add_argument("--check", action="store_true",
                         help="list the stale snapshots and exit 1 if any")
+    parser.add_argument("--keep", action="store_true",
+                        help="keep each study's runs in docs/_generated/<study>/ (their logs "
+                        "take about 35 GB for a full refresh); default: removed once its "
+                        "snapshot is written")
     parser.add_argument("--readme", action="store_true",
                         help="only write README.md's status from the reproduction's snapshot")
     args = parser.parse_args(argv)
@@ -323,7 +334,7 @@ def main(argv=None) -> int:
         print("every snapshot is up to date")
     status = 0
     for name in names:
-        status = refresh(name) or status
+        status = refresh(name, keep=args.keep) or status
     return status
 
 
