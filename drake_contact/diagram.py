@@ -204,7 +204,8 @@ def _add_controller(builder, scenarios, state, measured, fault=None):
     every input by name. ``state``: the plant state port; ``measured``: the
     MeasuredSignals; ``fault``: the safety supervisor's ``force_fault``
     (None without one: a controller's ``force_fault`` input is left
-    unconnected, which it reads as no fault). Returns ({input name: port}, {signal name: output
+    unconnected here, which one system alone reads as no fault; the caller
+    feeds an ensemble's zeros). Returns ({input name: port}, {signal name: output
     port} of what the station exports from it, whether the station's
     detector says the mode). Every port is environment-major."""
     scenario = scenarios[0]
@@ -252,6 +253,19 @@ def _add_controller(builder, scenarios, state, measured, fault=None):
     if contact is not None:
         outputs["contact_info"] = contact
     return inputs, outputs, detected
+
+
+def _no_force_fault(builder, count):
+    """The flag of an ensemble without a safety supervisor: zeros (no
+    fault), one source for the controller and the identifiers. One system
+    alone reads its unconnected ``force_fault`` input as no fault; in an
+    ensemble a plug-in's per-environment copies sit behind the adapter's
+    Demultiplexer (:class:`drake_contact.blocks.EnvironmentCopies`), whose
+    own input must then be connected."""
+    if builder.HasSubsystemNamed("no_force_fault"):
+        return builder.GetSubsystemByName("no_force_fault").get_output_port()
+    return builder.AddNamedSystem("no_force_fault",
+                                  ConstantVectorSource(np.zeros(count))).get_output_port()
 
 
 def _is_input(port):
@@ -545,6 +559,8 @@ def _add_control(builder, scenarios, state, sensing, physics, plant) -> _Control
                 connect(builder, port, supervisor[MEASUREMENTS[name].role])
     fault = supervisor["force_fault"] if supervisor is not None else None
     inputs, controller, detected = _add_controller(builder, scenarios, state, measured, fault)
+    if fault is None and "force_fault" in inputs and count > 1:
+        connect(builder, _no_force_fault(builder, count), inputs["force_fault"])
     h = scenario.arm.time_step
     saturation = AddTorqueSaturation(builder, np.concatenate([s.torque_limits for s in scenarios]))
     motor = builder.AddNamedSystem("motors", _bank(
@@ -560,8 +576,9 @@ def _add_control(builder, scenarios, state, sensing, physics, plant) -> _Control
         for name, port in measured.items():
             if identifiers.HasInputPort(MEASUREMENTS[name].role):
                 builder.Connect(port, identifiers.GetInputPort(MEASUREMENTS[name].role))
-        if fault is not None and identifiers.HasInputPort("force_fault"):
-            connect(builder, fault, identifiers.GetInputPort("force_fault"))
+        if identifiers.HasInputPort("force_fault") and (fault is not None or count > 1):
+            connect(builder, fault if fault is not None else _no_force_fault(builder, count),
+                    identifiers.GetInputPort("force_fault"))
         if identifiers.HasInputPort("contact_info"):
             builder.Connect(controller["contact_info"], identifiers.GetInputPort("contact_info"))
     if "impedance_estimate" in inputs:

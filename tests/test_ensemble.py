@@ -66,6 +66,26 @@ def test_each_environment_of_an_ensemble_gives_its_single_run_bit_for_bit(family
         _assert_same_logs(result, dc.simulate_scenario(scenario))
 
 
+def _contenders():
+    from drake_contact.app.benchmark import contender_names
+    return contender_names(None)
+
+
+@pytest.mark.parametrize("contender", _contenders())
+def test_every_benchmark_contender_runs_in_an_ensemble_as_alone(contender):
+    """Each contender the benchmark packs (the baselines and the plug-ins
+    serve N environments as per-environment copies behind the adapter):
+    without a safety supervisor its force_fault input reads zeros, and each
+    environment's log is its run alone, bit for bit."""
+    from drake_contact.app.benchmark import contender_scenario
+    scenarios = [dc.load_scenario(contender_scenario(contender),
+                                  [f"environment.stiffness={k}", "simulation.settle_window=0.3"],
+                                  duration=0.4, seed=seed)
+                 for seed, k in ((3, 7000.0), (4, 20000.0))]
+    for scenario, result in zip(scenarios, simulate_ensemble(scenarios)):
+        _assert_same_logs(result, dc.simulate_scenario(scenario))
+
+
 def test_a_diverging_environment_stops_alone_and_the_other_15_run_on():
     # Environment 5's wall is far too stiff: its force runs away within
     # 0.05 s, and its arm's torques then turn non-finite. The other 15
