@@ -84,7 +84,7 @@ STUDIES = {
     "benchmark": Study(("benchmark", "--controllers", BENCHMARK_CONTENDERS,
                         "--identifiers", "all"),
                        ("leaderboard.md", "leaderboard.csv", "identifier_leaderboard.csv",
-                        "benchmark.yaml", "figures/*.png")),
+                        "runs.csv", "identifiers.csv", "benchmark.yaml", "figures/*.png")),
     # The stability maps.
     "stability_nn": Study(("sweep", "stability_nn"), _SWEEP_KEEP),
     "stability_hybrid": Study(("sweep", "stability_hybrid"), _SWEEP_KEEP),
