@@ -102,10 +102,12 @@ def test_the_maps_and_the_page_show_the_right_cells(small):
     soft = [r["steady_force_n"] for r in result.rows
             if r["environment.stiffness"] == 7000.0 and r["environment.damping"] == 20.0]
     assert heat.values[0, 0] == pytest.approx(np.mean(soft))
-    # The same map as Markdown: the stiff column's cells say both seeds diverged.
+    # The same map as Markdown: the stiff column's cells say both seeds
+    # diverged; the line plot's table pools the seeds of both walls at B_e 20.
     table = [line for line in (out / "maps.md").read_text().splitlines()
              if line.startswith("| 20 |")]
-    assert len(table) == 1 and table[0].endswith("diverged 2/2 |"), table
+    assert len(table) == 2 and table[0].endswith("diverged 2/2 |"), table
+    assert table[1].endswith("diverged 2/4 | 30.3 to 30.3 | 4 |"), table
 
 
 def test_a_worker_killed_mid_point_loses_no_point(tmp_path):

@@ -304,8 +304,11 @@ class Generated(_MarkdownDirective):
                     f"\n```\n\nand build again.\n:::")
         self.env.note_dependency(str(source))
         self.env.note_dependency(str(snapshot))
+        # Comma-separated titles; a title with a comma in it ("The neural
+        # controller, window by window") is named whole.
         drop, only = ({name.strip() for name in self.options.get(key, "").split(",")
-                       if name.strip()} for key in ("drop", "only"))
+                       if name.strip()} | ({self.options[key].strip()} if key in self.options
+                                            else set()) for key in ("drop", "only"))
         # Images are named relative to this page, wherever the folder is.
         here = Path(self.env.doc2path(self.env.docname)).parent
         link = Path(os.path.relpath(folder, here)).as_posix()
