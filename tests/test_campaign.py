@@ -127,6 +127,44 @@ def test_packed_points_write_the_logs_they_write_alone(tmp_path, monkeypatch):
     assert [len(pack) for pack in ensemble_packs(points, 1, workers=1)] == [1, 1, 1, 1]
 
 
+def test_a_packs_baselines_run_as_an_ensemble_and_write_what_they_write_alone(tmp_path,
+                                                                            monkeypatch):
+    """The hybrid-only baselines of a pack's nn runs run as one ensemble
+    after it: each run's baseline log and baseline_* metrics are its run
+    alone's, bit for bit."""
+    import json
+
+    import numpy as np
+    import drake_contact as dc
+    from drake_contact.app import campaign, runner
+    monkeypatch.setattr(campaign, "MIN_ENSEMBLE", 2)
+    scenarios = [dc.load_scenario("nn_styrofoam", [
+        "controller.hybrid.approach.hold_time_s=0.1",
+        "controller.hybrid.approach.step_period_s=0.15", f"environment.stiffness={k}",
+        "scoring.window_start_s=0.05", "scoring.window_end_s=0.1"], duration=1.2, seed=seed)
+        for seed, k in ((3, 7000.0), (4, 12000.0))]
+    calls = []
+    ensemble = runner.simulate_ensemble
+    monkeypatch.setattr(runner, "simulate_ensemble",
+                        lambda s, **k: calls.append(len(s)) or ensemble(s, **k))
+    packed = runner.run_ensemble(scenarios, [tmp_path / "packed" / f"{i}" for i in range(2)],
+                                 baselines=["window", "window"])
+    assert calls == [2, 2]  # the runs, then their baselines
+    for i, scenario in enumerate(scenarios):
+        runner.run(scenario, tmp_path / "alone" / f"{i}", figures=False, baseline="window")
+        for folder in ("", "baseline"):
+            with np.load(tmp_path / "packed" / f"{i}" / folder / "log.npz") as a, \
+                    np.load(tmp_path / "alone" / f"{i}" / folder / "log.npz") as b:
+                assert a.files == b.files
+                for key in a.files:
+                    np.testing.assert_array_equal(a[key], b[key], err_msg=f"{i} {folder} {key}")
+        metrics = [json.loads((tmp_path / kind / f"{i}" / "metrics.json").read_text())
+                   for kind in ("packed", "alone")]
+        base = {k: v for k, v in metrics[1].items() if k.startswith("baseline_")}
+        assert base and all(metrics[0][k] == v for k, v in base.items())
+    assert packed[0].status == "completed"
+
+
 def test_ctrl_c_during_the_check_runs_nothing_and_still_reports(tmp_path, monkeypatch):
     from drake_contact.app import campaign
 

@@ -65,24 +65,39 @@ def run(scenario: Scenario, out_dir, *, progress=None, figures=True,
     return result
 
 
-def _finish(scenario: Scenario, result: RunResult, out: Path, *, figures, baseline):
-    """Writes a simulated run's log.npz, its baseline run (see :func:`run`),
-    metrics.json and figures into ``out``; ``result.log`` then reads
-    log.npz."""
+def _baseline_to_run(scenario: Scenario, result: RunResult, *, figures, baseline):
+    """The baseline scenario a finished run asks for (see :func:`run`), or
+    None: the hybrid part alone, to 1 s past the scoring window for
+    ``baseline="window"``."""
+    if baseline is None:
+        baseline = figures and scenario.controller.name == "nn"
+    if not baseline or result.status != "completed":
+        return None
+    base_scenario = baseline_scenario(scenario)
+    window_end = scenario.scoring.window_end_s
+    contact = result.metrics.get("contact_time_s")
+    if baseline == "window" and window_end > 0 and contact is not None:
+        base_scenario.simulation.duration = min(scenario.simulation.duration,
+                                                contact + window_end + 1.0)
+    return base_scenario
+
+
+def _finish(scenario: Scenario, result: RunResult, out: Path, *, figures, baseline,
+            base=None):
+    """Writes a simulated run's log.npz, its baseline run (see :func:`run`;
+    ``base``: that baseline's RunResult when it was already run, into
+    ``out/baseline``), metrics.json and figures into ``out``;
+    ``result.log`` then reads log.npz."""
     save_log(out / "log.npz", result.log)
     # The log now lives in log.npz: read from there, key by key.
     result.log = NpzLog(out / "log.npz")
     log, metrics = result.log, result.metrics
-    if baseline is None:
-        baseline = figures and scenario.controller.name == "nn"
     baseline_log = None
-    if baseline and result.status == "completed":
-        base_scenario = baseline_scenario(scenario)
-        window_end = scenario.scoring.window_end_s
-        if baseline == "window" and window_end > 0 and metrics.get("contact_time_s") is not None:
-            base_scenario.simulation.duration = min(
-                scenario.simulation.duration, metrics["contact_time_s"] + window_end + 1.0)
-        base = run(base_scenario, out / "baseline", figures=False, baseline=False)
+    if base is None:
+        base_scenario = _baseline_to_run(scenario, result, figures=figures, baseline=baseline)
+        if base_scenario is not None:
+            base = run(base_scenario, out / "baseline", figures=False, baseline=False)
+    if base is not None:
         baseline_log = base.log
         for key in ("force_rmse_n", "force_rmse_windows_n", "force_mean_abs_error_n",
                     "adaptation_time_s"):
@@ -102,8 +117,10 @@ def run_ensemble(scenarios, out_dirs, *, progress=None, figures=None, baselines=
     """Simulates ``scenarios`` as one ensemble (:func:`simulate_ensemble`)
     and writes each one's folder of ``out_dirs`` as :func:`run` does: the
     same files, the same log bit for bit. ``figures`` and ``baselines``:
-    each run's (see :func:`run`; default none; a baseline runs alone, after
-    the ensemble). Returns the RunResults, in order."""
+    each run's (see :func:`run`; default none). The baselines the runs ask
+    for run after it, as ensembles of their own where at least MIN_ENSEMBLE
+    share a structure (each log bit for bit its run alone), else alone.
+    Returns the RunResults, in order."""
     outs = [Path(o) for o in out_dirs]
     for scenario, out in zip(scenarios, outs):
         out.mkdir(parents=True, exist_ok=True)
@@ -111,9 +128,23 @@ def run_ensemble(scenarios, out_dirs, *, progress=None, figures=None, baselines=
     results = simulate_ensemble(scenarios, progress=progress)
     figures = figures or [False] * len(scenarios)
     baselines = baselines or [None] * len(scenarios)
-    for scenario, result, out, drawn, baseline in zip(scenarios, results, outs, figures,
-                                                       baselines):
-        _finish(scenario, result, out, figures=drawn, baseline=baseline)
+    asked = {i: _baseline_to_run(s, r, figures=f, baseline=b)
+             for i, (s, r, f, b) in enumerate(zip(scenarios, results, figures, baselines))}
+    from drake_contact.app.campaign import MIN_ENSEMBLE
+    from drake_contact.structure import ensemble_structure
+    groups = {}
+    for i, base in asked.items():
+        if base is not None:
+            groups.setdefault(ensemble_structure(base), []).append(i)
+    bases = {}
+    for members in groups.values():
+        if len(members) >= MIN_ENSEMBLE:  # fewer run alone, in _finish
+            bases |= dict(zip(members, run_ensemble(
+                [asked[i] for i in members], [outs[i] / "baseline" for i in members],
+                baselines=[False] * len(members))))
+    for i, (scenario, result, out, drawn, baseline) in enumerate(
+            zip(scenarios, results, outs, figures, baselines)):
+        _finish(scenario, result, out, figures=drawn, baseline=baseline, base=bases.get(i))
         result.simulator = None
     return results
 
