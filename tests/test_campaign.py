@@ -118,12 +118,13 @@ def test_packed_points_write_the_logs_they_write_alone(tmp_path, monkeypatch):
             assert a.files == b.files
             for key in a.files:
                 np.testing.assert_array_equal(a[key], b[key], err_msg=f"{wall} {key}")
-    # Packs: points sharing a controller, an even share per worker; a point
-    # that does not load is alone.
+    # Packs: points sharing a controller, an even share per worker as far as
+    # each pack keeps MIN_ENSEMBLE (here 2: three points are one pack, not
+    # two and one); a point that does not load is alone.
     points = [(p, tmp_path / p.name) for p in Stiffness().points()]
     points.append((Point("bad", "push_constant", ("environment.stifness=1",)), tmp_path / "bad"))
     assert [[p.name for p, _ in pack] for pack in ensemble_packs(points, 16, workers=2)] == [
-        ["k5000", "k7000"], ["k9000"], ["bad"]]
+        ["k5000", "k7000", "k9000"], ["bad"]]
     assert [len(pack) for pack in ensemble_packs(points, 1, workers=1)] == [1, 1, 1, 1]
 
 
@@ -163,6 +164,22 @@ def test_a_packs_baselines_run_as_an_ensemble_and_write_what_they_write_alone(tm
         base = {k: v for k, v in metrics[1].items() if k.startswith("baseline_")}
         assert base and all(metrics[0][k] == v for k, v in base.items())
     assert packed[0].status == "completed"
+
+
+def test_a_group_is_never_cut_below_the_smallest_ensemble_to_balance_the_workers(tmp_path):
+    """Packs are spread evenly over the workers only where each stays an
+    ensemble that pays (MIN_ENSEMBLE): 12 points of one structure on 2
+    workers are one ensemble of 12 (the reproduction's nn_* runs), not two of
+    6, which would run point by point; 16 are two of 8; 7 run alone."""
+    from drake_contact.app.campaign import MIN_ENSEMBLE, ensemble_packs
+    assert MIN_ENSEMBLE == 8
+    points = [(Point(f"k{k}", "push_constant", (f"environment.stiffness={k}",)),
+               tmp_path / f"k{k}") for k in range(5000, 21000, 1000)]
+    assert [len(p) for p in ensemble_packs(points[:12], 64, workers=2)] == [12]
+    assert [len(p) for p in ensemble_packs(points, 64, workers=2)] == [8, 8]
+    assert [len(p) for p in ensemble_packs(points, 64, workers=4)] == [8, 8]
+    assert [len(p) for p in ensemble_packs(points[:7], 64, workers=2)] == [1] * 7
+    assert [len(p) for p in ensemble_packs(points[:12], 5, workers=2)] == [1] * 12
 
 
 def test_ctrl_c_during_the_check_runs_nothing_and_still_reports(tmp_path, monkeypatch):

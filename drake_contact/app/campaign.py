@@ -356,9 +356,9 @@ def ensemble_packs(points, size, workers=1) -> list:
     controller and what it switches on, the identifiers, the safety
     supervisor, the signal of each fault, ...) and a duration (an ensemble runs
     as long as its longest), in their order, at most ``size`` a pack, the packs of a group of even sizes and
-    a whole number of them per worker where the group allows (so that
-    every worker gets the same work); a pack would be smaller than
-    MIN_ENSEMBLE, its points run alone. A point that records a playback, or whose scenario does not
+    a whole number of them per worker where the group allows without a pack
+    below MIN_ENSEMBLE (so that every worker gets the same work); a group
+    smaller than MIN_ENSEMBLE runs point by point. A point that records a playback, or whose scenario does not
     load, is a pack of its own."""
     from drake_contact.scenario import load_scenario
     from drake_contact.structure import ensemble_structure
@@ -374,10 +374,15 @@ def ensemble_packs(points, size, workers=1) -> list:
         groups.setdefault(key, []).append((point, out))
     packs = []
     for group in groups.values():
-        # As few packs as the size allows, a whole number of them per
-        # worker, of even sizes: every worker finishes at about one time.
+        # As few packs as the size allows, of even sizes, and a whole
+        # number of them per worker (every worker finishes at about one
+        # time) as far as each stays at least MIN_ENSEMBLE: 12 points on 2
+        # workers are one ensemble of 12, not two of 6 (which would run
+        # point by point); 16 on 4 workers are two of 8.
         count = -(-len(group) // size)
-        count = min(len(group), -(-count // workers) * workers) if workers > 1 else count
+        if workers > 1:
+            balanced = min(len(group), -(-count // workers) * workers)
+            count = max(count, min(balanced, len(group) // MIN_ENSEMBLE))
         share = -(-len(group) // count)
         if share < MIN_ENSEMBLE:
             share = 1
