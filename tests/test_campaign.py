@@ -137,8 +137,7 @@ def test_a_packs_baselines_run_as_an_ensemble_and_write_what_they_write_alone(tm
 
     import numpy as np
     import drake_contact as dc
-    from drake_contact.app import campaign, runner
-    monkeypatch.setattr(campaign, "MIN_ENSEMBLE", 2)
+    from drake_contact.app import runner
     scenarios = [dc.load_scenario("nn_styrofoam", [
         "controller.hybrid.approach.hold_time_s=0.1",
         "controller.hybrid.approach.step_period_s=0.15", f"environment.stiffness={k}",
@@ -149,7 +148,7 @@ def test_a_packs_baselines_run_as_an_ensemble_and_write_what_they_write_alone(tm
     monkeypatch.setattr(runner, "simulate_ensemble",
                         lambda s, **k: calls.append(len(s)) or ensemble(s, **k))
     packed = runner.run_ensemble(scenarios, [tmp_path / "packed" / f"{i}" for i in range(2)],
-                                 baselines=["window", "window"])
+                                 baselines=["window", "window"], pack_baselines=2)
     assert calls == [2, 2]  # the runs, then their baselines
     for i, scenario in enumerate(scenarios):
         runner.run(scenario, tmp_path / "alone" / f"{i}", figures=False, baseline="window")

@@ -247,7 +247,8 @@ def run_pack(task, batch="") -> dict:
     try:
         results = run_ensemble([s for *_, s in loaded], outs, progress=_stop_check(batch),
                                figures=[p.figures for _, p, _, _ in loaded],
-                               baselines=[p.baseline for _, p, _, _ in loaded])
+                               baselines=[p.baseline for _, p, _, _ in loaded],
+                               pack_baselines=MIN_ENSEMBLE)
     except ScenarioError:
         return timings | {name: run_point(point, out_dir, batch)
                           for name, point, out_dir, _ in loaded}

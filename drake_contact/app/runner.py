@@ -113,14 +113,15 @@ def _finish(scenario: Scenario, result: RunResult, out: Path, *, figures, baseli
         plot_contact_figures(log, scenario, out, baseline_log=baseline_log)
 
 
-def run_ensemble(scenarios, out_dirs, *, progress=None, figures=None, baselines=None) -> list:
+def run_ensemble(scenarios, out_dirs, *, progress=None, figures=None, baselines=None,
+                 pack_baselines=0) -> list:
     """Simulates ``scenarios`` as one ensemble (:func:`simulate_ensemble`)
     and writes each one's folder of ``out_dirs`` as :func:`run` does: the
     same files, the same log bit for bit. ``figures`` and ``baselines``:
     each run's (see :func:`run`; default none). The baselines the runs ask
-    for run after it, as ensembles of their own where at least MIN_ENSEMBLE
-    share a structure (each log bit for bit its run alone), else alone.
-    Returns the RunResults, in order."""
+    for run after it: as ensembles of their own where at least
+    ``pack_baselines`` (> 1; 0: never) share a structure (each log bit for
+    bit its run alone), else alone. Returns the RunResults, in order."""
     outs = [Path(o) for o in out_dirs]
     for scenario, out in zip(scenarios, outs):
         out.mkdir(parents=True, exist_ok=True)
@@ -130,7 +131,6 @@ def run_ensemble(scenarios, out_dirs, *, progress=None, figures=None, baselines=
     baselines = baselines or [None] * len(scenarios)
     asked = {i: _baseline_to_run(s, r, figures=f, baseline=b)
              for i, (s, r, f, b) in enumerate(zip(scenarios, results, figures, baselines))}
-    from drake_contact.app.campaign import MIN_ENSEMBLE
     from drake_contact.structure import ensemble_structure
     groups = {}
     for i, base in asked.items():
@@ -138,7 +138,7 @@ def run_ensemble(scenarios, out_dirs, *, progress=None, figures=None, baselines=
             groups.setdefault(ensemble_structure(base), []).append(i)
     bases = {}
     for members in groups.values():
-        if len(members) >= MIN_ENSEMBLE:  # fewer run alone, in _finish
+        if pack_baselines > 1 and len(members) >= pack_baselines:  # else alone, in _finish
             bases |= dict(zip(members, run_ensemble(
                 [asked[i] for i in members], [outs[i] / "baseline" for i in members],
                 baselines=[False] * len(members))))
