@@ -1,12 +1,11 @@
 """Sphinx configuration of the drake_contact documentation.
 
-Build it with ``python docs/build.py`` (the site alone, as the test suite
-does) or ``python docs/build.py --figures`` (first the long studies whose
-figures the pages show). Pages are Markdown (MyST); the API reference comes
-from the docstrings; the tutorial notebook is executed during the build.
+Build it with ``python docs/build.py`` (as the test suite does); the
+measured results are the committed snapshots of ``docs/results/``. Pages
+are Markdown (MyST); the API reference comes from the docstrings; the
+tutorial notebook is executed during the build.
 """
 
-import subprocess
 import sys
 from pathlib import Path
 
@@ -18,15 +17,10 @@ author = "the drake_contact developers"
 copyright = "2026, the drake_contact developers"
 
 
-def _commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=DOCS, text=True,
-                              capture_output=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
+from drake_contact_docs import _results_module  # noqa: E402
 
-
-release = version = _commit()
+# The commit the site is built from (docs/results.py stamps snapshots alike).
+release = version = _results_module()._commit()
 
 extensions = [
     "myst_nb",  # Markdown pages (it loads myst_parser) and executed notebooks
