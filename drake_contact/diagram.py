@@ -245,9 +245,8 @@ def _add_controller(builder, scenarios, state, measured, fault=None):
         if name in sources:
             connect(builder, sources[name], port)
         elif name in STATION_ACTION_INPUTS:
-            if count > 1:
-                raise ScenarioError(f"controller '{config.name}' reads {name} from outside "
-                                    "the station: an ensemble cannot export it")
+            # Environment-major, as every port: environment i's action at
+            # [k i, k (i + 1)).
             builder.ExportInput(port, name)
     # impedance_estimate is connected once the identifiers exist.
     if contact is not None:
@@ -274,7 +273,8 @@ def _is_input(port):
 
 #: Controller inputs the station exports as its own input ports, under the
 #: same name: a policy's action, set from outside the station (the
-#: Gymnasium environment fixes it at each of its steps).
+#: Gymnasium environments fix it at each of their steps; an ensemble's port
+#: holds every environment's action, environment-major).
 STATION_ACTION_INPUTS = ("policy_action",)
 
 
@@ -765,7 +765,8 @@ def SeedNoise(diagram, context, seed=None):
     ``diagram`` (the root diagram of ``context``, or a station itself).
 
     Each station's systems get their random state from ``seed`` (default:
-    its scenario's ``simulation.seed``; in an ensemble, each environment's),
+    its scenario's ``simulation.seed``; in an ensemble, each environment's;
+    a sequence: one seed per environment, for a station of that many),
     and each RandomSource then its own generator, seeded from its
     environment's seed and the source's name (``station.noise_sources``:
     the environment from the station's explicit map, the name without an
@@ -778,7 +779,15 @@ def SeedNoise(diagram, context, seed=None):
     if not stations:
         raise ValueError(f"'{diagram.get_name()}' holds no ContactStation to seed")
     for station in stations:
-        seeds = [s.simulation.seed if seed is None else int(seed) for s in station.scenarios]
+        if seed is None:
+            seeds = [s.simulation.seed for s in station.scenarios]
+        elif np.ndim(seed) == 0:
+            seeds = [int(seed)] * station.num_envs
+        else:
+            seeds = [int(s) for s in seed]
+            if len(seeds) != station.num_envs:
+                raise ValueError(f"SeedNoise: {len(seeds)} seeds for a station of "
+                                 f"{station.num_envs} environments")
         station_context = station.GetMyMutableContextFromRoot(context)
         station.SetRandomContext(station_context, RandomGenerator(seeds[0]))
         for env, name, system in station.noise_sources:

@@ -59,7 +59,7 @@ from drake_contact.control.hybrid_controller import APPROACH
 from drake_contact.control.policy import EXTERNAL
 from drake_contact.control.policy_spaces import (
     ACTION, ACTION_HIGH, ACTION_LOW, OBSERVATION, OBSERVATION_BOUND, check_action)
-from drake_contact.diagram import MakeContactDiagram, SeedNoise
+from drake_contact.diagram import MakeEnsembleDiagram, SeedNoise
 from drake_contact.errors import ScenarioError
 from drake_contact.plant.arm import CONTROL_PERIOD
 from drake_contact.scenario import Scenario, load_scenario
@@ -208,16 +208,7 @@ class ForceTrackingEnv(DrakeGymEnv):
     def _make_simulator(self, generator=None):
         drawn, task = self._draw()
         scenario = self.scenario(drawn, task)
-        builder = DiagramBuilder()
-        station = builder.AddSystem(MakeContactDiagram(scenario))
-        builder.ExportInput(station.GetInputPort("policy_action"), "policy_action")
-        for name in ("policy_observation", "contact_force_true", "joint_state_true",
-                     "force_desired", "mode"):
-            builder.ExportOutput(station.GetOutputPort(name), name)
-        diagram = builder.Build()
-        diagram.set_name("gym")
-        simulator = Simulator(diagram)
-        SeedNoise(diagram, simulator.get_mutable_context())
+        simulator = gym_simulator([scenario])
         self.drawn, self.episode_task, self.episode_scenario = drawn, task, scenario
         return simulator
 
@@ -270,27 +261,16 @@ class ForceTrackingEnv(DrakeGymEnv):
         observation = self.observation_port.Eval(context).copy()
         self._observation = observation
         info = self._info(context)
-        in_contact = observation[OBSERVATION.in_contact] == 1.0
-        reward = 0.0
-        if self._had_contact or in_contact:
-            reward = -min(observation[OBSERVATION.mean_abs_force_error], -LOWEST_REWARD)
-        lost = self._had_contact and not in_contact
-        self._had_contact |= in_contact
+        reward, lost, self._had_contact = step_reward(observation, self._had_contact, left)
         if lost:
             info["contact_lost"] = True
-            return observation, reward + LOWEST_REWARD * left, True, False, info
+            return observation, reward, True, False, info
         return observation, reward, False, left <= 0, info
 
     def _diverged(self, system, context) -> str:
-        state = system.GetOutputPort("joint_state_true").Eval(context)
-        force = system.GetOutputPort("contact_force_true").Eval(context)[0]
-        limit = self.episode_scenario.simulation.force_limit
-        if not (np.all(np.isfinite(state)) and math.isfinite(force)):
-            return f"diverged at t = {context.get_time():.3f} s: the arm's state is not finite"
-        if force > limit:
-            return (f"diverged at t = {context.get_time():.3f} s: the contact force {force:.4g} N "
-                    f"exceeds simulation.force_limit = {limit} N")
-        return ""
+        return divergence(system.GetOutputPort("joint_state_true").Eval(context),
+                          system.GetOutputPort("contact_force_true").Eval(context)[0],
+                          self.episode_scenario.simulation.force_limit, context.get_time())
 
     def _info(self, context) -> dict:
         system = self.simulator.get_system()
@@ -316,12 +296,64 @@ class ForceTrackingEnv(DrakeGymEnv):
                 f"f_d = {info['force_desired']:.2f} N  K_e = {info['stiffness']:.0f} N/m")
 
 
+#: The station's outputs an environment reads.
+GYM_OUTPUTS = ("policy_observation", "contact_force_true", "joint_state_true", "force_desired",
+               "mode")
+
+
+def gym_simulator(scenarios) -> Simulator:
+    """A Simulator of the station of ``scenarios`` (one environment, or an
+    ensemble: :func:`drake_contact.diagram.MakeEnsembleDiagram`) with its
+    input ``policy_action`` and the outputs :data:`GYM_OUTPUTS` exported,
+    its noise seeded by each scenario's seed."""
+    builder = DiagramBuilder()
+    station = builder.AddSystem(MakeEnsembleDiagram(scenarios))
+    builder.ExportInput(station.GetInputPort("policy_action"), "policy_action")
+    for name in GYM_OUTPUTS:
+        builder.ExportOutput(station.GetOutputPort(name), name)
+    diagram = builder.Build()
+    diagram.set_name("gym")
+    simulator = Simulator(diagram)
+    SeedNoise(diagram, simulator.get_mutable_context())
+    return simulator
+
+
+def step_reward(observation, had_contact: bool, left: int):
+    """(reward, contact lost, had contact since) of a step that ended in
+    ``observation`` with ``left`` steps of the episode after it: 0 before
+    the first contact, then minus the step's mean |f_d - f| in units of
+    10 N, at most 2; losing contact adds the lowest reward for every step
+    left."""
+    in_contact = observation[OBSERVATION.in_contact] == 1.0
+    reward = 0.0
+    if had_contact or in_contact:
+        reward = -min(observation[OBSERVATION.mean_abs_force_error], -LOWEST_REWARD)
+    lost = had_contact and not in_contact
+    if lost:
+        reward += LOWEST_REWARD * left
+    return reward, lost, had_contact or in_contact
+
+
+def divergence(state, force: float, limit: float, t: float) -> str:
+    """Why the arm's state [q; v] and the true contact force at ``t`` end
+    the episode ('' if they do not): not finite, or above ``limit``."""
+    if not (np.all(np.isfinite(state)) and math.isfinite(force)):
+        return f"diverged at t = {t:.3f} s: the arm's state is not finite"
+    if force > limit:
+        return (f"diverged at t = {t:.3f} s: the contact force {force:.4g} N "
+                f"exceeds simulation.force_limit = {limit} N")
+    return ""
+
+
 def drive_scale(drawn: dict) -> float:
     return float(drawn.get("drive_scale", 1.2))
 
 
 def register():
-    """Registers :data:`ENV_ID` with Gymnasium (once)."""
+    """Registers :data:`ENV_ID` with Gymnasium (once), with its vector
+    environment (:class:`drake_contact.app.gym_vector.ForceTrackingVectorEnv`)
+    as the entry point of ``gymnasium.make_vec``."""
     if ENV_ID not in gym.registry:
         gym.register(ENV_ID, entry_point="drake_contact.app.gym_env:ForceTrackingEnv",
+                     vector_entry_point="drake_contact.app.gym_vector:ForceTrackingVectorEnv",
                      disable_env_checker=False)
