@@ -69,14 +69,25 @@ class PolicyConfig:
                                 "or .npz file or 'module:name'")
 
 
-class NumpyPolicy:
-    """A small network in numpy: tanh hidden layers and a tanh output, so
-    its action is within [-1, 1]. ``layers`` is [(W, b), ...], W of shape
-    (outputs, inputs); no hidden layer is a linear policy through tanh."""
+#: How a NumpyPolicy's last layer gives an action within [-1, 1]: through
+#: tanh (a squashed policy: CMA-ES's), or clipped (the mean of a Gaussian
+#: policy, clipped to the action space as Stable-Baselines3's PPO does).
+OUTPUTS = ("tanh", "clip")
 
-    def __init__(self, layers):
+
+class NumpyPolicy:
+    """A small network in numpy: tanh hidden layers and an output through
+    tanh or clipped (``output``, :data:`OUTPUTS`), so its action is within
+    [-1, 1]. ``layers`` is [(W, b), ...], W of shape (outputs, inputs); no
+    hidden layer is a linear policy. Its input is one observation (10) or a
+    batch of them (n x 10: then n actions)."""
+
+    def __init__(self, layers, output="tanh"):
         self.layers = [(np.asarray(w, dtype=float), np.asarray(b, dtype=float))
                        for w, b in layers]
+        if output not in OUTPUTS:
+            raise ValueError(f"output = {output!r}: choose one of {', '.join(OUTPUTS)}")
+        self.output = output
         if self.layers[0][0].shape[1] != OBSERVATION.size or \
                 self.layers[-1][0].shape[0] != ACTION.size:
             raise ValueError(f"a NumpyPolicy maps {OBSERVATION.size} observations to "
@@ -84,10 +95,15 @@ class NumpyPolicy:
                              f"{self.layers[-1][0].shape[0]}")
 
     def __call__(self, observation):
-        h = np.asarray(observation, dtype=float)
-        for w, b in self.layers:
-            h = np.tanh(w @ h + b)
-        return h
+        h = np.asarray(observation, dtype=float).T
+        last = len(self.layers) - 1
+        for i, (w, b) in enumerate(self.layers):
+            h = w @ h + (b if h.ndim == 1 else b[:, None])
+            if i < last or self.output == "tanh":
+                h = np.tanh(h)
+        if self.output == "clip":
+            h = np.clip(h, -1.0, 1.0)
+        return h.T
 
     def save(self, path, **about):
         """Writes the layers to ``path``: .json (text, with ``about``: how it
@@ -95,9 +111,11 @@ class NumpyPolicy:
         path = Path(path)
         if path.suffix == ".json":
             layers = [{"W": w.tolist(), "b": b.tolist()} for w, b in self.layers]
-            path.write_text(json.dumps({"layers": layers, "about": about}, indent=1) + "\n")
+            data = {"layers": layers} | ({"output": self.output} if self.output != "tanh"
+                                         else {})
+            path.write_text(json.dumps(data | {"about": about}, indent=1) + "\n")
             return
-        arrays = {}
+        arrays = {"output": np.array(self.output)}
         for i, (w, b) in enumerate(self.layers):
             arrays[f"W{i}"], arrays[f"b{i}"] = w, b
         np.savez(path, **arrays)
@@ -108,10 +126,12 @@ class NumpyPolicy:
         path = Path(path)
         if path.suffix == ".json":
             data = json.loads(path.read_text())
-            return cls([(layer["W"], layer["b"]) for layer in data["layers"]])
+            return cls([(layer["W"], layer["b"]) for layer in data["layers"]],
+                       data.get("output", "tanh"))
         with np.load(path) as data:
             count = len([k for k in data.files if k.startswith("W")])
-            return cls([(data[f"W{i}"], data[f"b{i}"]) for i in range(count)])
+            output = str(data["output"]) if "output" in data.files else "tanh"
+            return cls([(data[f"W{i}"], data[f"b{i}"]) for i in range(count)], output)
 
 
 def zero_policy(observation):
