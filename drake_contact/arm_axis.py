@@ -447,7 +447,9 @@ def _libm_exp(x):
     return result
 
 
-def _libm_pow(base, exponent):
+def libm_pow(base, exponent):
+    """C's pow (Python's ``**`` on floats) elementwise on arrays, bit for
+    bit (numpy's power may round differently)."""
     base, exponent = np.broadcast_arrays(np.asarray(base, dtype=float),
                                          np.asarray(exponent, dtype=float))
     # Where Python raises (a negative base to a fraction, 0 to a negative
@@ -496,7 +498,7 @@ def _compile(code, outputs):
     code (see :class:`_Program`)."""
     lines = ["def run(V, C):"] + [f"    {_line(i, op)}" for i, op in enumerate(code)]
     lines.append(f"    return ({''.join(f'r{o}, ' for o in outputs)})")
-    namespace = {"np": np, "_libm_exp": _libm_exp, "_libm_pow": _libm_pow}
+    namespace = {"np": np, "_libm_exp": _libm_exp, "_libm_pow": libm_pow}
     exec("\n".join(lines), namespace)
     return namespace["run"]
 

@@ -250,7 +250,7 @@ def test_the_compiled_adc_and_tare_is_each_dsps_alone():
 
 def test_exp_and_pow_are_the_c_librarys_with_cs_inf_and_nan_where_python_raises():
     import math
-    from drake_contact.arm_axis import _libm_exp, _libm_pow
+    from drake_contact.arm_axis import _libm_exp, libm_pow as _libm_pow
     rng = np.random.default_rng(7)
     x = np.concatenate([rng.uniform(-745.0, 709.78, 20000), [-800.0, 0.0, 709.5, 709.78]])
     assert np.array_equal(_libm_exp(x), [math.exp(v) for v in x])

@@ -250,11 +250,13 @@ def test_configs_that_differ_in_structure_are_refused(change, field, value):
     assert "share a structure" in str(raised.value) and "\n" not in str(raised.value)
 
 
-def test_numbers_may_differ_but_not_the_policy_path():
+def test_numbers_may_differ_and_a_policy_acts_on_each_environment():
     HybridControlLaw([HybridControllerConfig(), HybridControllerConfig(force_gain=0.2,
                                                                        force_integral_band_n=2.0)])
-    with pytest.raises(ScenarioError, match="one environment"):
-        HybridControlLaw([HybridControllerConfig()] * 2, action_input=True)
+    law = HybridControlLaw([HybridControllerConfig()] * 3, action_input=True)
+    assert law.GetInputPort("policy_action").size() == 12
+    with pytest.raises(ScenarioError, match="acts on the hybrid law only"):
+        HybridControlLaw([HybridControllerConfig(law="decoupled")] * 2, action_input=True)
 
 
 def test_each_config_is_validated_with_its_environment_named():

@@ -130,6 +130,30 @@ def test_a_rollout_equals_the_run_of_the_same_policy_as_the_controller(tmp_path)
     assert np.abs(log["policy_action"][-1]).max() > 0.01  # the policy acted
 
 
+def test_policies_in_an_ensemble_act_as_alone_in_contact(tmp_path):
+    """The policy controller serving N environments (one law, observation
+    and runner, each environment its own policy, a clipped and a tanh
+    output) gives each its run alone, bit for bit, through contact."""
+    from drake_contact.simulation import simulate_ensemble
+    rng = np.random.default_rng(4)
+    env = ForceTrackingEnv(task="square_sine", duration_s=10.2)
+    scenarios = []
+    for i, (wall, output) in enumerate(((WALL, "clip"), ((40000.0, 15.0), "tanh"))):
+        hidden = 0.3 * rng.standard_normal((8, OBSERVATION.size)), np.zeros(8)
+        last = 0.5 * rng.standard_normal((ACTION.size, 8)), 0.2 * rng.standard_normal(4)
+        path = tmp_path / f"policy{i}.json"
+        NumpyPolicy([hidden, last], output=output).save(path)
+        drawn = {"stiffness": wall[0], "damping": wall[1], "seed": 5 + i, "drive_scale": 1.1}
+        scenarios.append(env.scenario(drawn, "square_sine", source=str(path)))
+    for scenario, result in zip(scenarios, simulate_ensemble(scenarios)):
+        alone = simulate_scenario(scenario)
+        assert result.status == alone.status == "completed"
+        assert alone.log["mode"][-1] == 1.0  # in contact at the end
+        for key in alone.log:
+            np.testing.assert_array_equal(np.asarray(result.log[key]),
+                                          np.asarray(alone.log[key]), err_msg=key)
+
+
 def test_a_wall_of_1e9_n_per_m_diverges_into_a_termination_with_the_penalty():
     env = ForceTrackingEnv(task="hold", duration_s=8.0, walls=[(1e9, 100.0)])
     env.reset(seed=0)

@@ -168,7 +168,7 @@ from drake_contact.plant.arm import (
     is_sample_time)
 from drake_contact.control.controller_model import ArmModel, ControllerModelConfig
 from drake_contact.plant.planar_arm import solve3
-from drake_contact.control.policy_spaces import ACTION, apply_action
+from drake_contact.control.policy_spaces import ACTION, apply_action, apply_actions
 from drake_contact.errors import ScenarioError, require_finite
 
 CONTACT_LAWS = ("hybrid", "decoupled")
@@ -491,8 +491,9 @@ class HybridControlLaw(LeafSystem):
     :func:`drake_contact.arm_axis.arm_axis_ops`; environment i's outputs are
     bit for bit those of the law with its config alone. The configs may
     differ in every number, not in the options they switch on (the law, and
-    which optional terms are on: :func:`_check_structure`). A policy's
-    ``action_input`` serves one environment."""
+    which optional terms are on: :func:`_check_structure`). With
+    ``action_input``, a policy's action (4 per environment, env-major)
+    acts on each environment's law."""
 
     def __init__(self, config: HybridControllerConfig | Sequence[HybridControllerConfig],
                  action_input: bool = False):
@@ -503,9 +504,6 @@ class HybridControlLaw(LeafSystem):
             c.validate("controller.hybrid" if count == 1 else f"controller.hybrid[{i}]")
         _check_structure(configs)
         first = configs[0]
-        if action_input and count > 1:
-            raise ScenarioError(f"controller.hybrid: a policy's action acts on one environment, "
-                                f"not an ensemble's {count}")
         if action_input and first.law != "hybrid":
             raise ScenarioError(f"controller.hybrid.law = '{first.law}': a policy's action "
                                 "acts on the hybrid law only: choose law: hybrid")
@@ -547,8 +545,9 @@ class HybridControlLaw(LeafSystem):
         # held output (the previous sample's) for the policy's observation:
         # it does not depend on the action.
         self._action = None
+        self._applied = None  # (action bytes, apply_actions of it): a memo
         if action_input:
-            self._action = self.DeclareVectorInputPort("policy_action", ACTION.size)
+            self._action = self.DeclareVectorInputPort("policy_action", ACTION.size * count)
             self.DeclareStateOutputPort("held", self._held)
         self._control = self.DeclareVectorOutputPort(
             "control", _LAW_SIZE * count, self._calc_control,
@@ -692,13 +691,27 @@ class HybridControlLaw(LeafSystem):
             p.force_gain, p.force_integral_gain, p.contact_damping_x)
         damping = self._damping_x
         if self._action is not None:
-            residual, force_gain, integral_gain, damping_x = apply_action(
-                self._action.Eval(context), force_gain, integral_gain, damping_x)
-            damping = bool(damping_x)
+            action = self._action.Eval(context)
+            if self._count == 1:
+                residual, force_gain, integral_gain, damping_x = apply_action(
+                    action, force_gain, integral_gain, damping_x)
+                damping = bool(damping_x)
+            else:
+                # The action changes once per policy period: its gains are
+                # computed once for each action (C's pow costs).
+                key = action.tobytes()
+                if self._applied is None or self._applied[0] != key:
+                    self._applied = (key, apply_actions(
+                        action.reshape(self._count, ACTION.size), force_gain, integral_gain,
+                        damping_x))
+                residual, force_gain, integral_gain, damping_x = self._applied[1]
+                damping = damping_x != 0.0  # each environment's bool(damping_x)
         force_x = f_d + force_gain * error + integral_gain * error_sum
         if self._action is not None:
             force_x = force_x + residual
-        if damping:
+        if self._action is not None and self._count > 1:
+            force_x = self._ops.where(damping, force_x - damping_x * xd[0], force_x)
+        elif damping:
             force_x = force_x - damping_x * xd[0]
         if self._force_rate_damping:
             force_x = force_x - p.contact_force_rate_damping * (f - f_previous) / CONTROL_PERIOD
@@ -764,10 +777,10 @@ class HybridController(Diagram):
         from the controller's model (for the compensator's J^T n);
       contact_info (4 N): [time of the first switch (s) or -1, x, y, phi at
         the latest switch] for the reference generator and identifiers.
-    With ``action_input`` (one environment): the input policy_action (4, see
+    With ``action_input``: the input policy_action (4 N, see
     :mod:`drake_contact.control.policy_spaces`) and the output held (the
     law's output at the previous sample: its layout's mode, contact_info,
-    ...).
+    ...; for N environments field-major, as :func:`_gather` lays it out).
 
     A sub-diagram: the law (:class:`HybridControlLaw`, one Python
     evaluation per sample for all N) and a Demultiplexer that names its

@@ -25,14 +25,16 @@ import dataclasses as dc
 import importlib
 import json
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import ConstantVectorSource
 
 from drake_contact.control.hybrid_controller import (
-    _LAW, APPROACH, HybridController, HybridControllerConfig)
-from drake_contact.control.policy_spaces import ACTION, OBSERVATION, check_action, observation
+    _LAW, APPROACH, HybridController, HybridControllerConfig, _gather, structure)
+from drake_contact.control.policy_spaces import (
+    ACTION, OBSERVATION, check_action, observation, observations)
 from drake_contact.errors import ScenarioError, SimulationDiverged, require_finite
 from drake_contact.measured import by_role
 from drake_contact.options import config_from_options
@@ -172,35 +174,51 @@ def policy_factory(function):
 
 class PolicyObservation(LeafSystem):
     """The policy's observation (:data:`OBSERVATION`) from the measured
-    signals and the law's held output, at each 1 ms sample (held between).
+    signals and the law's held output, at each 1 ms sample (held between),
+    for N environments (``y_desired``, ``phi_desired``: a number each for
+    one, a sequence for N).
 
-    Inputs: tip_pose (3), tip_velocity (3), force (1), force_desired (1),
-    law_held (the hybrid law's previous output). Output: observation (10)
-    (and next_state, the state after this sample, which the update stores).
-    Its state: the sum of |f_d - f| since the last period boundary, how many
-    samples it holds, the previous sample's force, and the observation."""
+    Inputs (env-major): tip_pose (3 N), tip_velocity (3 N), force (N),
+    force_desired (N), law_held (the hybrid law's previous output, laid out
+    as the law's for N). Output: observation (10 N) (and next_state, the
+    state after this sample, which the update stores). Its state, per
+    environment: the sum of |f_d - f| since the last period boundary, how
+    many samples it holds, the previous sample's force, and the
+    observation. One environment runs on Python floats and stops the run
+    on a non-finite observation; N run on arrays (N,), each row bit for bit
+    its environment's alone, a diverging environment's values its own
+    (the station reports it)."""
 
-    def __init__(self, period_ms: int, y_desired: float, phi_desired: float):
+    def __init__(self, period_ms: int, y_desired, phi_desired):
         super().__init__()
+        self._count = count = int(np.size(y_desired))
         self._period = period_ms
-        self._targets = (y_desired, phi_desired)
-        self._pose = self.DeclareVectorInputPort("tip_pose", 3)
-        self._velocity = self.DeclareVectorInputPort("tip_velocity", 3)
-        self._force = self.DeclareVectorInputPort("force", 1)
-        self._force_desired = self.DeclareVectorInputPort("force_desired", 1)
-        self._law = self.DeclareVectorInputPort("law_held", _LAW.size)
-        self._state = self.DeclareDiscreteState(3 + OBSERVATION.size)
+        self._targets = (y_desired, phi_desired) if count == 1 else (
+            np.asarray(y_desired, dtype=float), np.asarray(phi_desired, dtype=float))
+        self._pose = self.DeclareVectorInputPort("tip_pose", 3 * count)
+        self._velocity = self.DeclareVectorInputPort("tip_velocity", 3 * count)
+        self._force = self.DeclareVectorInputPort("force", count)
+        self._force_desired = self.DeclareVectorInputPort("force_desired", count)
+        self._law = self.DeclareVectorInputPort("law_held", _LAW.size * count)
+        self._gather = _gather(count)
+        self._state = self.DeclareDiscreteState(_STATE_SIZE * count)
         ticket = {self.all_input_ports_ticket(), self.xd_ticket(), self.time_ticket()}
         # The state after this sample (held between samples): computed once
         # per sample, cached, read by the observation and by the update.
         self._next = self.DeclareVectorOutputPort(
-            "next_state", 3 + OBSERVATION.size, self._calc_next, prerequisites_of_calc=ticket)
+            "next_state", _STATE_SIZE * count,
+            self._calc_next if count == 1 else self._calc_next_rows,
+            prerequisites_of_calc=ticket)
         self.DeclareVectorOutputPort(
-            "observation", OBSERVATION.size,
-            lambda context, output: output.SetFromVector(self._next.Eval(context)[3:]),
+            "observation", OBSERVATION.size * count,
+            lambda context, output: output.SetFromVector(
+                self._next.Eval(context).reshape(count, _STATE_SIZE)[:, 3:].reshape(-1)),
             prerequisites_of_calc=ticket)
         DeclareSampledUpdate(self, lambda context, state: state.set_value(
             self._next.Eval(context)))
+
+    def _boundary(self, t):
+        return round(t / CONTROL_PERIOD) % self._period == 0
 
     def _calc_next(self, context, output):
         held = context.get_discrete_state(self._state).value()
@@ -223,26 +241,62 @@ class PolicyObservation(LeafSystem):
             t - first_contact if first_contact >= 0.0 else 0.0)
         require_finite(np.array(values), context, "controller/policy_observation",
                        "the policy's observation")
-        boundary = round(t / CONTROL_PERIOD) % self._period == 0
-        state = [0.0, 0.0, f] if boundary else [error_sum + error, count + 1.0, f]
+        state = [0.0, 0.0, f] if self._boundary(t) else [error_sum + error, count + 1.0, f]
         output.SetFromVector(state + values)
+
+    def _calc_next_rows(self, context, output):
+        """:meth:`_calc_next` on arrays (N,), one row per environment."""
+        n = self._count
+        held = context.get_discrete_state(self._state).value()
+        t = context.get_time()
+        if not is_sample_time(t):
+            output.SetFromVector(held)
+            return
+        rows = held.reshape(n, _STATE_SIZE)
+        error_sum, count, force_previous = rows[:, 0], rows[:, 1], rows[:, 2]
+        pose = self._pose.Eval(context).reshape(n, 3)
+        f = self._force.Eval(context)
+        f_d = self._force_desired.Eval(context)
+        law = self._law.Eval(context)[self._gather]
+        error = np.abs(f_d - f)
+        mean = (error_sum + error) / (count + 1.0)
+        first_contact = law[_LAW.info.start]
+        values = observations(
+            f_d, f, force_previous, mean, self._velocity.Eval(context)[0::3],
+            pose[:, 1] - self._targets[0], pose[:, 2] - self._targets[1],
+            np.where(law[_LAW.mode] == APPROACH, 0.0, 1.0),
+            np.where(first_contact >= 0.0, t - first_contact, 0.0))
+        if self._boundary(t):
+            state = [np.zeros(n), np.zeros(n), f]
+        else:
+            state = [error_sum + error, count + 1.0, f]
+        output.SetFromVector(np.concatenate([np.stack(state, axis=1), values],
+                                            axis=1).reshape(-1))
+
+
+#: The observation system's state per environment: the error sum, its
+#: count, the previous force, then the observation.
+_STATE_SIZE = 3 + OBSERVATION.size
 
 
 class PolicyRunner(LeafSystem):
-    """Calls ``policy`` on the observation every ``period_ms`` samples and
-    holds its action (checked: ACTION.size finite numbers) until the next;
-    the action at a boundary acts from that sample on.
+    """Calls each environment's policy on its observation every
+    ``period_ms`` samples and holds its action (checked: ACTION.size finite
+    numbers) until the next; the action at a boundary acts from that
+    sample on. ``policies``: one callable, or a list of N (one per
+    environment, each called on its own row).
 
-    Input: observation (10). Output: policy_action (4)."""
+    Input: observation (10 N). Output: policy_action (4 N); env-major."""
 
-    def __init__(self, policy, period_ms: int):
+    def __init__(self, policies, period_ms: int):
         super().__init__()
-        self._policy = policy
+        self._policies = list(policies) if isinstance(policies, (list, tuple)) else [policies]
+        count = len(self._policies)
         self._period = period_ms
-        self._observation = self.DeclareVectorInputPort("observation", OBSERVATION.size)
-        self._held = self.DeclareDiscreteState(ACTION.size)
+        self._observation = self.DeclareVectorInputPort("observation", OBSERVATION.size * count)
+        self._held = self.DeclareDiscreteState(ACTION.size * count)
         self._output = self.DeclareVectorOutputPort(
-            "policy_action", ACTION.size, self._calc,
+            "policy_action", ACTION.size * count, self._calc,
             prerequisites_of_calc={self.all_input_ports_ticket(), self.xd_ticket(),
                                    self.time_ticket()})
         DeclareSampledUpdate(self, lambda context, state: state.set_value(
@@ -253,13 +307,16 @@ class PolicyRunner(LeafSystem):
         if not (is_sample_time(t) and round(t / CONTROL_PERIOD) % self._period == 0):
             output.SetFromVector(context.get_discrete_state(self._held).value())
             return
+        rows = self._observation.Eval(context).reshape(len(self._policies), OBSERVATION.size)
+        where = "the policy's action"
         try:
-            action = check_action(self._policy(self._observation.Eval(context).copy()),
-                                  "the policy's action")
+            actions = [check_action(policy(row.copy()), where if len(rows) == 1 else
+                                    f"environment {i}'s policy's action")
+                       for i, (policy, row) in enumerate(zip(self._policies, rows))]
         except ValueError as e:
             raise SimulationDiverged(f"stopped at t = {t:.3f} s: {e} (controller/policy)",
                                      time_s=t, where="controller/policy") from None
-        output.SetFromVector(action)
+        output.SetFromVector(np.concatenate(actions))
 
 
 @dc.dataclass
@@ -274,15 +331,20 @@ class PolicyController(Diagram):
     """The thesis's hybrid controller driven by a policy: the law
     (:class:`HybridController` with its ``policy_action`` input), the
     observation (:class:`PolicyObservation`) and, unless the policy is
-    external, the :class:`PolicyRunner` calling ``policy``.
+    external, the :class:`PolicyRunner` calling ``policy``. For N
+    environments: ``hybrid`` a list of N configs and ``policy`` None (each
+    loaded from ``config.source``) or a list of N callables; one system
+    of each kind serves all N, every port env-major.
 
     Inputs: the hybrid controller's measured ones and force_desired, and
-    with an external policy policy_action (4). Outputs: as the hybrid
-    controller's, plus policy_observation (10) and policy_action (4, not
-    with an external policy: the station's input is the action)."""
+    with an external policy policy_action (4 N). Outputs: as the hybrid
+    controller's, plus policy_observation (10 N) and policy_action (4 N,
+    not with an external policy: the station's input is the action)."""
 
-    def __init__(self, hybrid: HybridControllerConfig, config: PolicyConfig, policy=None):
+    def __init__(self, hybrid: HybridControllerConfig | list, config: PolicyConfig, policy=None):
         super().__init__()
+        configs = hybrid if isinstance(hybrid, list) else [hybrid]
+        count = len(configs)
         builder = DiagramBuilder()
         law = builder.AddNamedSystem("hybrid", HybridController(hybrid, action_input=True))
         station = by_role()
@@ -291,11 +353,12 @@ class PolicyController(Diagram):
         for name in ("force_desired", "force_fault"):
             builder.ExportInput(law.GetInputPort(name), name)
         stiffness = builder.AddNamedSystem(
-            "stiffness_estimate", ConstantVectorSource([hybrid.stiffness_estimate]))
+            "stiffness_estimate", ConstantVectorSource([c.stiffness_estimate for c in configs]))
         builder.Connect(stiffness.get_output_port(), law.GetInputPort("stiffness_estimate"))
+        targets = ((configs[0].y_desired, configs[0].phi_desired) if count == 1 else
+                   ([c.y_desired for c in configs], [c.phi_desired for c in configs]))
         watch = builder.AddNamedSystem(
-            "observation", PolicyObservation(config.period_ms, hybrid.y_desired,
-                                             hybrid.phi_desired))
+            "observation", PolicyObservation(config.period_ms, *targets))
         for role in ("tip_pose", "tip_velocity", "force"):
             builder.ConnectInput(station[role], watch.GetInputPort(role))
         builder.ConnectInput("force_desired", watch.GetInputPort("force_desired"))
@@ -303,8 +366,10 @@ class PolicyController(Diagram):
         if config.source == EXTERNAL:
             builder.ExportInput(law.GetInputPort("policy_action"), "policy_action")
         else:
-            runner = builder.AddNamedSystem(
-                "policy", PolicyRunner(policy or load_policy(config.source), config.period_ms))
+            if policy is None:
+                policy = load_policy(config.source)
+            policies = policy if isinstance(policy, list) else [policy] * count
+            runner = builder.AddNamedSystem("policy", PolicyRunner(policies, config.period_ms))
             builder.Connect(watch.GetOutputPort("observation"), runner.get_input_port())
             builder.Connect(runner.get_output_port(), law.GetInputPort("policy_action"))
             builder.ExportOutput(runner.get_output_port(), "policy_action")
@@ -314,19 +379,40 @@ class PolicyController(Diagram):
         builder.BuildInto(self)
 
 
-@declare(sections=("hybrid", "policy"), contender=False, unlogged=("tip_jacobian",), signals={
+def _policy_structure(options: dict) -> dict:
+    """What an ensemble's environments share: the hybrid law's switches,
+    the policy's period, and whether its action comes from outside."""
+    section = options["policy"]
+    policy = section if isinstance(section, PolicyConfig) else PolicyConfig(**section)
+    hybrid = options["hybrid"]
+    hybrid = hybrid if isinstance(hybrid, HybridControllerConfig) else \
+        SimpleNamespace(**hybrid)
+    return {f"hybrid.{field}": value for field, value in structure(hybrid).items()} | {
+        "policy.period_ms": policy.period_ms, "policy.external": policy.source == EXTERNAL}
+
+
+@declare(sections=("hybrid", "policy"), contender=False, unlogged=("tip_jacobian",),
+         ensemble=True, structure=_policy_structure, signals={
     "policy_observation": "the policy's observation (drake_contact.control.policy_spaces."
                           "OBSERVATION_FIELDS: each signal over its scale)",
     "policy_action": "the policy's action [force_residual, force_gain_scale, "
                      "integral_gain_scale, damping_x], each in [-1, 1] before clipping"})
-def policy(options: dict):
+def policy(options: dict | list):
     """The hybrid law driven by a policy; options: ``hybrid`` (the fields of
     :class:`HybridControllerConfig`, law hybrid) and ``policy`` (of
-    :class:`PolicyConfig`)."""
-    config = config_from_options(PolicyControllerOptions, options, "controller")
-    config.hybrid.validate("controller.hybrid")
-    if config.hybrid.law != "hybrid":
-        raise ScenarioError(f"controller.hybrid.law = '{config.hybrid.law}': the policy "
-                            "controller acts on the hybrid law: choose law: hybrid")
-    config.policy.validate("controller.policy")
-    return PolicyController(config.hybrid, config.policy)
+    :class:`PolicyConfig`); a list of them: one system serving an
+    ensemble's environments (each its own policy)."""
+    configs = [config_from_options(PolicyControllerOptions, o, "controller")
+               for o in (options if isinstance(options, list) else [options])]
+    for config in configs:
+        config.hybrid.validate("controller.hybrid")
+        if config.hybrid.law != "hybrid":
+            raise ScenarioError(f"controller.hybrid.law = '{config.hybrid.law}': the policy "
+                                "controller acts on the hybrid law: choose law: hybrid")
+        config.policy.validate("controller.policy")
+    if not isinstance(options, list):
+        return PolicyController(configs[0].hybrid, configs[0].policy)
+    first = configs[0].policy
+    policies = None if first.source == EXTERNAL else [
+        load_policy(c.policy.source) for c in configs]
+    return PolicyController([c.hybrid for c in configs], first, policies)
