@@ -190,3 +190,29 @@ def test_a_simulator_error_terminates_with_the_penalty():
     assert terminated and not truncated
     assert info["diverged"] == "MultibodyPlant: a NaN in the applied forces"
     assert reward == LOWEST_REWARD * (env.steps - 1)
+
+
+def test_a_numpy_policy_clips_or_squashes_and_takes_a_batch(tmp_path):
+    rng = np.random.default_rng(6)
+    layers = [(rng.standard_normal((8, OBSERVATION.size)), rng.standard_normal(8)),
+              (3.0 * rng.standard_normal((ACTION.size, 8)), rng.standard_normal(ACTION.size))]
+    batch = 2.0 * rng.standard_normal((5, OBSERVATION.size))
+    for output in ("tanh", "clip"):
+        policy = NumpyPolicy(layers, output=output)
+        actions = policy(batch)
+        assert actions.shape == (5, ACTION.size)
+        assert np.abs(actions).max() <= 1.0
+        for row, action in zip(batch, actions):
+            np.testing.assert_allclose(policy(row), action, rtol=0, atol=1e-12)
+        for suffix in (".json", ".npz"):
+            path = tmp_path / f"policy_{output}{suffix}"
+            policy.save(path)
+            loaded = NumpyPolicy.load(path)
+            assert loaded.output == output
+            np.testing.assert_array_equal(loaded(batch[0]), policy(batch[0]))
+    h = np.tanh(layers[0][0] @ batch[0] + layers[0][1])
+    mean = layers[1][0] @ h + layers[1][1]
+    assert np.array_equal(NumpyPolicy(layers, output="clip")(batch[0]), np.clip(mean, -1, 1))
+    assert (np.abs(mean) > 1).any()  # the clip is exercised
+    with pytest.raises(ValueError, match="output = 'relu'"):
+        NumpyPolicy(layers, output="relu")

@@ -41,17 +41,19 @@ def policy_of(theta):
 
 def run_generation(envs, policies, seeds):
     """One synchronised episode of every environment, environment i acting
-    with ``policies[i]``: (returns, whether it ended early, steps simulated)."""
+    with ``policies[i]``: (returns, whether it ended early, steps simulated,
+    of which held)."""
     observations, _ = envs.reset(seed=seeds)
     returns = np.zeros(envs.num_envs)
-    simulated = 0
+    simulated = held = 0
     while True:
         actions = np.array([p(o) for p, o in zip(policies, observations)])
         observations, rewards, terminated, _, info = envs.step(actions)
         returns += rewards
         simulated += envs.num_envs
+        held += int((~info["stepped"]).sum())
         if not info["active"].any():
-            return returns, terminated, simulated
+            return returns, terminated, simulated, held
 
 
 def main(argv=None):
@@ -74,7 +76,7 @@ def main(argv=None):
                                   {"popsize": args.popsize, "seed": args.seed + 1,
                                    "verbose": -9})
     start = time.perf_counter()
-    history, simulated, generation = [], 0, 0
+    history, simulated, held, generation = [], 0, 0, 0
     while simulated < args.budget:
         candidates = es.ask()
         # Common random numbers: every candidate sees the same K episodes.
@@ -82,8 +84,9 @@ def main(argv=None):
                          for e in range(args.episodes)]
         seeds = [s for _ in candidates for s in episode_seeds]
         policies = [policy_of(c) for c in candidates for _ in episode_seeds]
-        returns, ended, steps = run_generation(envs, policies, seeds)
+        returns, ended, steps, idle = run_generation(envs, policies, seeds)
         simulated += steps
+        held += idle
         scores = returns.reshape(args.popsize, args.episodes).mean(axis=1)
         es.tell(candidates, [-float(r) for r in scores])
         history.append({"generation": generation, "steps_simulated": simulated,
@@ -99,6 +102,7 @@ def main(argv=None):
                             popsize=args.popsize, episodes_per_candidate=args.episodes,
                             episode_s=args.duration, task="random", sigma0=args.sigma,
                             wall_clock_s=round(wall, 1), steps_simulated=simulated,
+                            held_steps=held,
                             generations=history)
     print(f"wrote {out}")
 
