@@ -10,7 +10,8 @@ import pytest
 
 from drake_contact import ScenarioError, load_scenario
 from drake_contact.app.benchmark import (
-    SCENARIO_CONTENDERS, SUITES, TASKS, Run, aggregate, contender_names, contender_scenario)
+    SCENARIO_CONTENDERS, SUITES, TASKS, Run, aggregate, contender_names, contender_scenario,
+    markdown, seed_families)
 from drake_contact.scoring.metrics import step_metrics
 
 
@@ -57,6 +58,25 @@ def test_a_contact_loss_ranks_below_any_rmse_and_the_overall_rank_is_the_mean():
     assert overall["a"]["runs_losing_contact"] == 1
     hold_b = next(e for e in board if e["contender"] == "b" and e["task"] == "hold")
     assert hold_b["force_rmse_n_median"] == 3.5 and hold_b["force_rmse_n_worst"] == 4.0
+
+
+def test_contenders_of_one_method_by_training_seed_are_summarized_over_seeds():
+    rows = ([_row("ppo_s0", "hold", 1.0), _row("ppo_s0", "hold", 3.0, "lost_contact"),
+             _row("ppo_s1", "hold", 2.0), _row("ppo_s1", "hold", 2.0),
+             _row("ppo_s2", "hold", 4.0), _row("ppo_s2", "hold", 5.0),
+             _row("lone_s0", "hold", 1.0), _row("lone_s0", "hold", 1.0),
+             _row("hybrid", "hold", 0.5), _row("hybrid", "hold", 0.5)])
+    contenders = ["ppo_s0", "ppo_s1", "ppo_s2", "lone_s0", "hybrid"]
+    board = aggregate(rows, contenders, ["hold"])
+    families = seed_families(board)
+    assert [method for method, _ in families] == ["ppo"]  # one seed is no spread
+    assert [e["contender"] for e in families[0][1]] == ["ppo_s0", "ppo_s1", "ppo_s2"]
+    text = markdown(board, "quick", SUITES["quick"])
+    line = next(line for line in text.splitlines() if line.startswith("| ppo |"))
+    # Ranks: hybrid 1, lone_s0 2, ppo_s1 3 (2.0), ppo_s2 4 (4.5), ppo_s0 5 (a loss).
+    # Median RMSE per seed: 2.0, 2.0, 4.5 -> median 2.0, worst 4.5.
+    assert line == "| ppo | 3 | 5, 3, 4 | 1/2, 0/2, 0/2 | 2.00 | 4.50 |"
+    assert "## Over training seeds" in text
 
 
 def test_step_metrics_of_a_first_order_response_by_hand():

@@ -33,6 +33,9 @@ contact, then by its median force RMSE; its overall rank is by its mean
 rank over the tasks. Writes ``runs.csv`` (every run), ``leaderboard.csv``
 (per contender and task, with the ranks), ``leaderboard.md`` and
 ``leaderboard.html`` (the tables and one figure per task), ``figures/``.
+Contenders named ``<method>_s<k>`` are training seed k of one method (the
+learned policies): the leaderboard's "Over training seeds" section gives
+each method's spread over its seeds (:func:`seed_families`).
 
 With ``--identifiers``, the identifiers (:func:`identifier_entries`: the
 thesis's and ours from ``identify_styrofoam``, and every installed plug-in
@@ -46,6 +49,7 @@ contact, B_e, M_e and the time to settle within 5 % of K_e
 import base64
 import dataclasses as dc
 import html
+import re
 from pathlib import Path
 
 import numpy as np
@@ -450,6 +454,44 @@ def _fmt(value, digits=2):
     return str(value)
 
 
+#: A contender ``<method>_s<k>``: training seed k of ``method``.
+SEED_NAME = re.compile(r"^(?P<method>.+)_s(?P<seed>\d+)$")
+
+
+def seed_families(board) -> list:
+    """Each method with two or more training seeds among the contenders:
+    (method, its overall entries by seed). Its spread over seeds: the
+    ranks, the runs losing contact, the median force RMSE of each seed."""
+    families = {}
+    for e in board:
+        match = SEED_NAME.match(e["contender"]) if e["task"] == "all" else None
+        if match:
+            families.setdefault(match["method"], []).append((int(match["seed"]), e))
+    return [(method, [e for _, e in sorted(entries, key=lambda x: x[0])])
+            for method, entries in families.items() if len(entries) >= 2]
+
+
+def _seed_lines(board) -> list:
+    families = seed_families(board)
+    if not families:
+        return []
+    lines = ["", "## Over training seeds", "",
+             "Each learned method's contenders, one per training seed (`<method>_s<k>`): "
+             "their overall ranks, runs losing contact, and median force RMSE (the median "
+             "and the worst over the seeds).", "",
+             "| method | seeds | overall ranks | runs losing contact | "
+             "median force RMSE (N): median over seeds | worst seed |",
+             "|---|---|---|---|---|---|"]
+    for method, entries in families:
+        ranks = ", ".join(_fmt(e["rank"]) for e in entries)
+        lost = ", ".join(f"{e['runs_losing_contact']}/{e['runs']}" for e in entries)
+        rmse = [e["force_rmse_n_median"] for e in entries]
+        known = [v for v in rmse if v is not None]
+        lines.append(f"| {method} | {len(entries)} | {ranks} | {lost} | "
+                     f"{_fmt(_median(rmse))} | {_fmt(max(known) if known else None)} |")
+    return lines
+
+
 def markdown(board, suite_name, suite: Suite, wall_s=None, rows=None) -> str:
     walls = ", ".join(f"{k / 1000:g} kN/m & {b:g} N s/m" for k, b in suite.walls)
     lines = [f"# Leaderboard: suite `{suite_name}`", "",
@@ -470,6 +512,7 @@ def markdown(board, suite_name, suite: Suite, wall_s=None, rows=None) -> str:
                      f"{e['runs_losing_contact']}/{e['runs']} | {e['runs_diverged']} | "
                      f"{e['runs_no_contact']} | {e['runs_failed']}/{e['runs']} | "
                      f"{_fmt(e['force_rmse_n_median'])} |")
+    lines += _seed_lines(board)
     for task in suite.tasks:
         shown = [score for score in SCORES if score.show]
         lines += ["", f"## {task}: {TASKS[task][0]}", "",
