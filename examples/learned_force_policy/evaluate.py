@@ -49,15 +49,28 @@ def evaluate(policy, suite, supervisor=False):
         n = envs.num_envs
         errors = [[] for _ in range(n)]
         first_contact = np.full(n, np.nan)
+        # The last change of f_d by more than 1 N (a step of the square
+        # wave), and where a contact loss came relative to it.
+        last_step = np.full(n, np.nan)
+        last_fd = np.full(n, np.nan)
+        loss = [None] * n
         while True:
             actions = np.array([policy(o) for o in observations])
             observations, _, terminated, _, info = envs.step(actions)
             for i in np.flatnonzero(info["stepped"]):
+                t, f_d = info["time_s"][i], info["force_desired"][i]
+                if abs(f_d - last_fd[i]) > 1.0:
+                    last_step[i] = t
+                last_fd[i] = f_d
                 if info["in_contact"][i] and np.isnan(first_contact[i]):
-                    first_contact[i] = info["time_s"][i]
-                since = info["time_s"][i] - first_contact[i]
+                    first_contact[i] = t
+                since = t - first_contact[i]
                 if suite.window_s[0] <= since <= suite.window_s[1]:
-                    errors[i].append(info["force_true"][i] - info["force_desired"][i])
+                    errors[i].append(info["force_true"][i] - f_d)
+                if terminated[i]:
+                    loss[i] = {"time_s": float(t), "after_first_contact_s": float(since),
+                               "after_step_of_fd_s": float(t - last_step[i]),
+                               "force_desired_n": float(f_d)}
             if not info["active"].any():
                 break
         lost = info.get("contact_lost", np.zeros(n, bool))
@@ -66,7 +79,7 @@ def evaluate(policy, suite, supervisor=False):
             rmse = float(np.sqrt(np.mean(np.square(errors[i])))) if errors[i] else None
             runs.append({"task": task, "stiffness": k, "damping": b,
                          "contact_lost": bool(lost[i]), "diverged": str(diverged[i]),
-                         "rmse_n": rmse})
+                         "rmse_n": rmse, "ended": loss[i]})
     return runs
 
 

@@ -13,7 +13,8 @@ environment steps simulated (SB3's timesteps: num_envs per step, held
 environments included), the same budget ``train.py`` (CMA-ES) spends.
 
 The policy: SB3's MlpPolicy (tanh, 64-64 for the actor and the critic, a
-Gaussian of state-independent std from ``--log-std-init``). Exported as a
+Gaussian of state-independent std from ``--log-std-init``), its rewards
+normalized by SB3's VecNormalize (``--no-normalize-reward``: raw). Exported as a
 :class:`NumpyPolicy` (output ``clip``): the deterministic action, the
 Gaussian's mean clipped to [-1, 1] as SB3 clips it, so the benchmark, its
 pre-run check and the published results run it without torch. The export
@@ -31,6 +32,7 @@ import numpy as np
 import stable_baselines3
 import torch
 from stable_baselines3 import PPO
+from stable_baselines3.common.vec_env import VecNormalize
 
 from drake_contact.control.policy import NumpyPolicy
 from drake_contact.gym import ForceTrackingVectorEnv, TrainingDistribution
@@ -63,6 +65,7 @@ def main(argv=None):
     parser.add_argument("--n-steps", type=int, default=400)
     parser.add_argument("--log-std-init", type=float, default=-1.0)
     parser.add_argument("--learning-rate", type=float, default=3e-4)
+    parser.add_argument("--no-normalize-reward", dest="normalize_reward", action="store_false")
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args(argv)
     out = args.out or HERE / "drake_contact_learned_policy" / "policies" / \
@@ -70,9 +73,15 @@ def main(argv=None):
     torch.set_num_threads(1)
     envs = ForceTrackingVectorEnv(num_envs=args.num_envs, task="random",
                                   duration_s=args.duration, training=TrainingDistribution())
-    venv = ForceTrackingSb3VecEnv(envs)
+    adapter = ForceTrackingSb3VecEnv(envs)
     # Training seed s: environment i's episodes drawn from seed 1_000_000 s + i.
-    venv.seed(1_000_000 * args.seed)
+    adapter.seed(1_000_000 * args.seed)
+    # The rewards scaled by a running estimate of the discounted return's
+    # spread (SB3's VecNormalize, as its zoo trains continuous control): a
+    # lost contact's penalty reaches -2 per step left, hundreds at once. The
+    # observation is not normalized: the exported policy reads it as is.
+    venv = (VecNormalize(adapter, norm_obs=False, norm_reward=True, gamma=0.99)
+            if args.normalize_reward else adapter)
     hyper = {"n_steps": args.n_steps, "batch_size": args.n_steps * args.num_envs // 8,
              "n_epochs": 10, "learning_rate": args.learning_rate, "gamma": 0.99,
              "gae_lambda": 0.95, "clip_range": 0.2, "ent_coef": 0.0}
@@ -91,17 +100,18 @@ def main(argv=None):
     if error > 1e-5:
         raise SystemExit(f"the export differs from SB3's action by {error:.3g}")
     out.parent.mkdir(parents=True, exist_ok=True)
-    history = venv.history
+    history = adapter.history
     policy.save(out, trainer=f"PPO (stable-baselines3 {stable_baselines3.__version__}, "
                              f"torch {torch.__version__})",
                 seed=args.seed, budget_steps=args.budget, num_envs=args.num_envs,
                 episode_s=args.duration, task="random", log_std_init=args.log_std_init,
+                normalize_reward=args.normalize_reward,
                 hyperparameters=hyper, wall_clock_s=round(wall, 1),
-                steps_simulated=venv.steps_simulated, held_steps=venv.held_steps,
+                steps_simulated=adapter.steps_simulated, held_steps=adapter.held_steps,
                 export_max_error=error, episodes=history)
     returns = [e["r"] for e in history]
     print(json.dumps({"seed": args.seed, "wall_s": round(wall, 1),
-                      "steps": venv.steps_simulated, "held": venv.held_steps,
+                      "steps": adapter.steps_simulated, "held": adapter.held_steps,
                       "episodes": len(history),
                       "first_returns": float(np.mean(returns[:args.num_envs])),
                       "last_returns": float(np.mean(returns[-args.num_envs:]))}))
