@@ -70,9 +70,12 @@ class Study:
 #: The benchmark's contenders, named (its default is every installed
 #: controller plug-in, which would make the study depend on the machine):
 #: the thesis's, the robust ones, the baselines and the two example
-#: plug-ins the test command installs.
+#: plug-ins the test command installs (jt_pi, and the learned policies:
+#: learned_residual and each training seed of PPO and CMA-ES).
 BENCHMARK_CONTENDERS = ("hybrid,hybrid_pi,nn,nn_robust,adaptive_hybrid,admittance,impedance,"
-                        "jt_pi,learned_residual,parallel_force")
+                        "jt_pi,learned_residual,parallel_force,"
+                        "learned_ppo_s0,learned_ppo_s1,learned_ppo_s2,"
+                        "learned_cmaes_s0,learned_cmaes_s1,learned_cmaes_s2")
 _SWEEP_KEEP = ("maps.md", "results.csv", "sweep.yaml", "map_*.png")
 
 STUDIES = {
