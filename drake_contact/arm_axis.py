@@ -42,6 +42,7 @@ friction, 27 at N = 1).
 """
 
 import math
+import operator
 from types import SimpleNamespace
 
 import numpy as np
@@ -79,21 +80,26 @@ def _array_clip(x, low, high):
     return _array_minimum(_array_maximum(x, low), high)
 
 
+def _array_pow(base, exponent):
+    return libm_pow(base, exponent)
+
+
 #: The operations of an arm-axis kernel (one code for one environment and
 #: for N), on one environment's Python floats: ``where(c, a, b)`` is ``a if
 #: c else b``, ``maximum``/``minimum``/``clip`` Python's ``max``/``min``,
 #: ``floor`` a float, ``any``/``all`` of a bool the bool. A Python float
 #: operation costs some 30 ns, numpy's on an array of one about 1 us.
 SCALAR_OPS = SimpleNamespace(where=_where, maximum=max, minimum=min, clip=_clip, floor=_floor,
-                             copysign=math.copysign, sin=math.sin, cos=math.cos, any=bool,
-                             all=bool)
+                             copysign=math.copysign, sin=math.sin, cos=math.cos,
+                             pow=operator.pow, any=bool, all=bool)
 #: The same operations elementwise on arrays (N,), each environment's
 #: result bit for bit its Python float result: ``maximum(a, b)`` is
 #: ``where(b > a, b, a)``, Python's ``max(a, b)`` (NaN and signed zeros
-#: included, where ``np.maximum`` differs), and so on.
+#: included, where ``np.maximum`` differs), ``pow`` C's pow
+#: (:func:`libm_pow`), and so on.
 ARRAY_OPS = SimpleNamespace(where=np.where, maximum=_array_maximum, minimum=_array_minimum,
                             clip=_array_clip, floor=np.floor, copysign=np.copysign, sin=np.sin,
-                            cos=np.cos, any=np.any, all=np.all)
+                            cos=np.cos, pow=_array_pow, any=np.any, all=np.all)
 
 
 def arm_axis_ops(count):

@@ -33,8 +33,8 @@ from pydrake.systems.primitives import ConstantVectorSource
 
 from drake_contact.control.hybrid_controller import (
     _LAW, APPROACH, HybridController, HybridControllerConfig, _gather, structure)
-from drake_contact.control.policy_spaces import (
-    ACTION, OBSERVATION, check_action, observation, observations)
+from drake_contact.arm_axis import arm_axis_ops
+from drake_contact.control.policy_spaces import ACTION, OBSERVATION, check_action, observation
 from drake_contact.errors import ScenarioError, SimulationDiverged, require_finite
 from drake_contact.measured import by_role
 from drake_contact.options import config_from_options
@@ -192,6 +192,7 @@ class PolicyObservation(LeafSystem):
     def __init__(self, period_ms: int, y_desired, phi_desired):
         super().__init__()
         self._count = count = int(np.size(y_desired))
+        self._ops = arm_axis_ops(count)
         self._period = period_ms
         self._targets = (y_desired, phi_desired) if count == 1 else (
             np.asarray(y_desired, dtype=float), np.asarray(phi_desired, dtype=float))
@@ -206,9 +207,7 @@ class PolicyObservation(LeafSystem):
         # The state after this sample (held between samples): computed once
         # per sample, cached, read by the observation and by the update.
         self._next = self.DeclareVectorOutputPort(
-            "next_state", _STATE_SIZE * count,
-            self._calc_next if count == 1 else self._calc_next_rows,
-            prerequisites_of_calc=ticket)
+            "next_state", _STATE_SIZE * count, self._calc_next, prerequisites_of_calc=ticket)
         self.DeclareVectorOutputPort(
             "observation", OBSERVATION.size * count,
             lambda context, output: output.SetFromVector(
@@ -217,61 +216,44 @@ class PolicyObservation(LeafSystem):
         DeclareSampledUpdate(self, lambda context, state: state.set_value(
             self._next.Eval(context)))
 
-    def _boundary(self, t):
-        return round(t / CONTROL_PERIOD) % self._period == 0
-
     def _calc_next(self, context, output):
         held = context.get_discrete_state(self._state).value()
         t = context.get_time()
         if not is_sample_time(t):
             output.SetFromVector(held)
             return
-        error_sum, count, force_previous = held[:3].tolist()
+        n, ops = self._count, self._ops
         pose = self._pose.Eval(context)
-        f = self._force.Eval(context)[0]
-        f_d = self._force_desired.Eval(context)[0]
         law = self._law.Eval(context)
+        if n == 1:
+            error_sum, count, force_previous = held[:3].tolist()
+            f = self._force.Eval(context)[0]
+            f_d = self._force_desired.Eval(context)[0]
+            velocity_x, y, phi = self._velocity.Eval(context)[0], pose[1], pose[2]
+            mode, first_contact = law[_LAW.mode], law[_LAW.info][0]
+        else:
+            rows = held.reshape(n, _STATE_SIZE)
+            error_sum, count, force_previous = rows[:, 0], rows[:, 1], rows[:, 2]
+            f = self._force.Eval(context)
+            f_d = self._force_desired.Eval(context)
+            velocity_x, y, phi = self._velocity.Eval(context)[0::3], pose[1::3], pose[2::3]
+            law = law[self._gather]
+            mode, first_contact = law[_LAW.mode], law[_LAW.info.start]
         error = abs(f_d - f)
         mean = (error_sum + error) / (count + 1.0)
-        first_contact = law[_LAW.info][0]
         values = observation(
-            f_d, f, force_previous, mean,
-            self._velocity.Eval(context)[0], pose[1] - self._targets[0],
-            pose[2] - self._targets[1], 0.0 if law[_LAW.mode] == APPROACH else 1.0,
-            t - first_contact if first_contact >= 0.0 else 0.0)
-        require_finite(np.array(values), context, "controller/policy_observation",
-                       "the policy's observation")
-        state = [0.0, 0.0, f] if self._boundary(t) else [error_sum + error, count + 1.0, f]
-        output.SetFromVector(state + values)
-
-    def _calc_next_rows(self, context, output):
-        """:meth:`_calc_next` on arrays (N,), one row per environment."""
-        n = self._count
-        held = context.get_discrete_state(self._state).value()
-        t = context.get_time()
-        if not is_sample_time(t):
-            output.SetFromVector(held)
-            return
-        rows = held.reshape(n, _STATE_SIZE)
-        error_sum, count, force_previous = rows[:, 0], rows[:, 1], rows[:, 2]
-        pose = self._pose.Eval(context).reshape(n, 3)
-        f = self._force.Eval(context)
-        f_d = self._force_desired.Eval(context)
-        law = self._law.Eval(context)[self._gather]
-        error = np.abs(f_d - f)
-        mean = (error_sum + error) / (count + 1.0)
-        first_contact = law[_LAW.info.start]
-        values = observations(
-            f_d, f, force_previous, mean, self._velocity.Eval(context)[0::3],
-            pose[:, 1] - self._targets[0], pose[:, 2] - self._targets[1],
-            np.where(law[_LAW.mode] == APPROACH, 0.0, 1.0),
-            np.where(first_contact >= 0.0, t - first_contact, 0.0))
-        if self._boundary(t):
-            state = [np.zeros(n), np.zeros(n), f]
+            f_d, f, force_previous, mean, velocity_x, y - self._targets[0],
+            phi - self._targets[1], ops.where(mode == APPROACH, 0.0, 1.0),
+            ops.where(first_contact >= 0.0, t - first_contact, 0.0), ops)
+        boundary = round(t / CONTROL_PERIOD) % self._period == 0
+        state = [ops.where(boundary, 0.0, error_sum + error),
+                 ops.where(boundary, 0.0, count + 1.0), f]
+        if n == 1:
+            require_finite(np.array(values), context, "controller/policy_observation",
+                           "the policy's observation")
+            output.SetFromVector(state + values)
         else:
-            state = [error_sum + error, count + 1.0, f]
-        output.SetFromVector(np.concatenate([np.stack(state, axis=1), values],
-                                            axis=1).reshape(-1))
+            output.SetFromVector(np.column_stack(state + values).reshape(-1))
 
 
 #: The observation system's state per environment: the error sum, its
@@ -381,13 +363,11 @@ class PolicyController(Diagram):
 
 def _policy_structure(options: dict) -> dict:
     """What an ensemble's environments share: the hybrid law's switches,
-    the policy's period, and whether its action comes from outside."""
-    section = options["policy"]
-    policy = section if isinstance(section, PolicyConfig) else PolicyConfig(**section)
-    hybrid = options["hybrid"]
-    hybrid = hybrid if isinstance(hybrid, HybridControllerConfig) else \
-        SimpleNamespace(**hybrid)
-    return {f"hybrid.{field}": value for field, value in structure(hybrid).items()} | {
+    the policy's period, and whether its action comes from outside
+    (``options``: the sections as mappings, as the station passes them)."""
+    policy = PolicyConfig(**options["policy"])
+    return {f"hybrid.{field}": value
+            for field, value in structure(SimpleNamespace(**options["hybrid"])).items()} | {
         "policy.period_ms": policy.period_ms, "policy.external": policy.source == EXTERNAL}
 
 

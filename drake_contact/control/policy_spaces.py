@@ -34,7 +34,7 @@ contact; each clipped to [-100, 100] (:data:`OBSERVATION_BOUND`).
 
 import numpy as np
 
-from drake_contact.arm_axis import ARRAY_OPS, libm_pow
+from drake_contact.arm_axis import SCALAR_OPS
 from drake_contact.blocks import Layout
 
 #: The action's fields, in order.
@@ -87,46 +87,27 @@ def check_action(action, where="action") -> np.ndarray:
     return a
 
 
-def apply_action(action, force_gain, integral_gain, damping_x):
+def apply_action(action, force_gain, integral_gain, damping_x, ops=SCALAR_OPS):
     """The hybrid law's (residual force (N), K_fp, K_fi, D_x) under
     ``action`` (clipped to its bounds). The zero action returns the gains
-    unchanged and a residual of 0."""
-    a0, a1, a2, a3 = (min(max(v, ACTION_LOW), ACTION_HIGH) for v in action.tolist())
-    return (RESIDUAL_N * a0, force_gain * GAIN_SCALE_BASE ** a1,
-            integral_gain * GAIN_SCALE_BASE ** a2, max(damping_x + DAMPING_N_S_PER_M * a3, 0.0))
-
-
-def apply_actions(actions, force_gain, integral_gain, damping_x):
-    """:func:`apply_action` for N environments at once: ``actions`` (N x 4),
-    the gains arrays (N,); each environment's values bit for bit
-    :func:`apply_action`'s (the operations of
-    :data:`drake_contact.arm_axis.ARRAY_OPS`, C's pow)."""
-    clip = ARRAY_OPS.clip
-    a0, a1, a2, a3 = (clip(np.asarray(actions, dtype=float)[:, k], ACTION_LOW, ACTION_HIGH)
-                      for k in range(ACTION.size))
-    return (RESIDUAL_N * a0, force_gain * libm_pow(GAIN_SCALE_BASE, a1),
-            integral_gain * libm_pow(GAIN_SCALE_BASE, a2),
-            ARRAY_OPS.maximum(damping_x + DAMPING_N_S_PER_M * a3, 0.0))
+    unchanged and a residual of 0. One environment: ``action`` (4,) and
+    the gains floats; N (``ops`` ARRAY_OPS, see
+    :func:`drake_contact.arm_axis.arm_axis_ops`): ``action`` (N x 4) and
+    the gains arrays (N,), each environment bit for bit its values alone."""
+    columns = action.tolist() if ops is SCALAR_OPS else np.asarray(action, dtype=float).T
+    a0, a1, a2, a3 = (ops.clip(v, ACTION_LOW, ACTION_HIGH) for v in columns)
+    return (RESIDUAL_N * a0, force_gain * ops.pow(GAIN_SCALE_BASE, a1),
+            integral_gain * ops.pow(GAIN_SCALE_BASE, a2),
+            ops.maximum(damping_x + DAMPING_N_S_PER_M * a3, 0.0))
 
 
 def observation(force_desired, force, force_previous, mean_abs_error, velocity_x, y_error,
-                phi_error, in_contact, time_in_contact) -> list:
-    """The observation vector (a list of OBSERVATION.size floats) from the
-    measured values, each over its scale."""
+                phi_error, in_contact, time_in_contact, ops=SCALAR_OPS) -> list:
+    """The observation (a list of OBSERVATION.size values) from the
+    measured values, each over its scale: Python floats for one
+    environment, arrays (N,) for N (``ops`` ARRAY_OPS), each environment's
+    bit for bit its values alone."""
     raw = (force_desired - force, mean_abs_error, force, force_desired,
            (force - force_previous) / 1e-3, velocity_x, y_error, phi_error, in_contact,
            time_in_contact)
-    return [min(max(v / s, -OBSERVATION_BOUND), OBSERVATION_BOUND) for v, s in zip(raw, _SCALES)]
-
-
-def observations(force_desired, force, force_previous, mean_abs_error, velocity_x, y_error,
-                 phi_error, in_contact, time_in_contact) -> np.ndarray:
-    """:func:`observation` for N environments at once (each argument an
-    array (N,)): N x OBSERVATION.size, each row bit for bit
-    :func:`observation`'s."""
-    raw = (force_desired - force, mean_abs_error, force, force_desired,
-           (force - force_previous) / 1e-3, velocity_x, y_error, phi_error, in_contact,
-           time_in_contact)
-    clip = ARRAY_OPS.clip
-    return np.stack([clip(v / s, -OBSERVATION_BOUND, OBSERVATION_BOUND)
-                     for v, s in zip(raw, _SCALES)], axis=1)
+    return [ops.clip(v / s, -OBSERVATION_BOUND, OBSERVATION_BOUND) for v, s in zip(raw, _SCALES)]
