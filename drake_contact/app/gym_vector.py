@@ -145,6 +145,14 @@ class ForceTrackingVectorEnv(VectorEnv):
         self.reset_cost = {"wall_s": time.perf_counter() - start, "rebuilt": rebuilt,
                            "stations": len(self.groups)}
         self.scenarios = drawn
+        # Each episode's ground truth, for every step's info.
+        facts = [env._facts() for env in self.envs]
+        self._episode_facts = {}
+        for key in ("task", "stiffness", "damping", "law", "friction_coefficient",
+                    "drive_scale", "seed"):
+            values = [f[key] for f in facts]
+            self._episode_facts[key] = np.array(
+                values, dtype=object if isinstance(values[0], str) else None)
         self._step = 0
         self._active[:] = True
         self._had_contact = np.zeros(self.num_envs, dtype=bool)
@@ -296,11 +304,7 @@ class ForceTrackingVectorEnv(VectorEnv):
                 "stepped": self._active.copy() if running is None else running.copy(),
                 "force_true": force_true, "force_desired": force_desired,
                 "in_contact": in_contact}
-        facts = [env._facts() for env in self.envs]
-        for key in ("task", "stiffness", "damping", "law", "friction_coefficient",
-                    "drive_scale", "seed"):
-            values = [f[key] for f in facts]
-            info[key] = np.array(values, dtype=object if isinstance(values[0], str) else None)
+        info |= {key: value.copy() for key, value in self._episode_facts.items()}
         for key in ("diverged", "contact_lost"):
             has = np.array([key in f for f in self._final])
             if has.any():

@@ -52,9 +52,8 @@ class ForceTrackingSb3VecEnv(VecEnv):
         self._actions = np.asarray(actions, dtype=float).reshape(self.num_envs, -1)
 
     def step_wait(self):
-        was_active = self.envs._active.copy()
         observations, rewards, terminated, truncated, info = self.envs.step(self._actions)
-        stepped = info["stepped"]
+        stepped = info["stepped"]  # running before this step
         self.steps_simulated += self.num_envs
         self.held_steps += int((~stepped).sum())
         dones = terminated | truncated
@@ -62,7 +61,7 @@ class ForceTrackingSb3VecEnv(VecEnv):
         self._returns += rewards
         self._lengths += stepped
         for i in range(self.num_envs):
-            if not was_active[i]:
+            if not stepped[i]:
                 infos[i] = {"held": True, "terminal_observation": observations[i].astype(
                     np.float32), "TimeLimit.truncated": False}
                 continue
